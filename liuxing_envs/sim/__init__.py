@@ -1,0 +1,1 @@
+"""The MuJoCo world shared by every environment: scene, arm, wrist depth camera, viewpoints."""

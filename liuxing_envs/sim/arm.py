@@ -1,0 +1,523 @@
+"""The arm: inverse kinematics, collision checking and motion of the 6-DoF arm.
+
+:class:`Arm` wraps the arm joints of a compiled tabletop scene (``assets/ur5e.xml``). It keeps
+a private scratch :class:`mujoco.MjData` for everything hypothetical (IK iterations, collision
+checks of configurations and paths), so asking questions never disturbs the simulation; only
+:meth:`Arm.move_to` changes the live ``data``.
+
+Two ways to move, both collision-checked and reporting the same :class:`MotionResult`:
+
+``kinematic``
+    The configuration is set directly along the straight joint-space path. The path is checked
+    waypoint by waypoint first; if it would collide, the arm stops at the last collision-free
+    waypoint (like a protective stop) and reports the contact. Fast; no dynamics.
+``dynamic``
+    The position actuators track a set-point that moves along the same path at a bounded joint
+    speed, under full physics (gravity compensation, torque limits), until the arm settles
+    within tolerance of the target or a timeout. A contact between the arm and anything halts
+    the set-point where the arm is (a protective stop).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from liuxing_envs.sim.scene import (
+    ARM_ACTUATOR_NAMES,
+    ARM_BASE_BODY,
+    ARM_JOINT_NAMES,
+    HOME_QPOS,
+    WRIST_CAMERA_SITE,
+)
+
+MOTION_MODES = ("kinematic", "dynamic")
+
+IK_POSITION_TOLERANCE = 5e-4  # m
+IK_ROTATION_TOLERANCE = np.deg2rad(0.25)  # rad
+IK_MAX_ITERATIONS = 200
+IK_RESTARTS = 12
+IK_DAMPING = 0.02
+IK_MAX_STEP = 0.4  # rad of joint motion per DLS iteration
+IK_SEED = 0
+#: An attempt is abandoned when its error shrank by less than 1 - IK_STALL_RATIO over the
+#: last IK_STALL_WINDOW iterations.
+IK_STALL_WINDOW = 20
+IK_STALL_RATIO = 0.9
+#: Metres of position error one radian of orientation error is worth in the IK error norm.
+IK_ROTATION_WEIGHT = 0.2
+
+#: Largest displacement of any point of the arm between two checked waypoints of a path.
+PATH_CHECK_STEP = 0.01  # m
+#: Upper bounds on the distance from each joint axis to any point of the arm beyond it (m),
+#: which turn a joint-space step into a bound on how far the arm's surface moves.
+JOINT_LEVER_ARMS = np.array([1.0, 1.0, 0.6, 0.3, 0.25, 0.15])
+
+DYNAMIC_MAX_JOINT_SPEED = 1.0  # rad/s, well under the UR5e's 3.14 rad/s
+DYNAMIC_CONTROL_PERIOD = 0.01  # s between set-point updates and contact checks
+DYNAMIC_SETTLE_TOLERANCE = 1e-3  # rad, every joint
+DYNAMIC_SETTLE_SPEED = 0.02  # rad/s, every joint
+DYNAMIC_TIMEOUT = 8.0  # s of simulated time
+#: Contacts shallower than this are touching, not colliding (MuJoCo reports dist <= 0).
+PENETRATION_TOLERANCE = 1e-4  # m
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A contact involving the arm: the two geoms and how deep they interpenetrate (m)."""
+
+    geom1: str
+    geom2: str
+    depth: float
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """Outcome of :meth:`Arm.solve_ik`.
+
+    ``success`` means the pose was reached within tolerance by a collision-free configuration
+    inside the joint limits (when collisions were checked). ``qpos`` is that configuration, or
+    the best attempt when ``success`` is False.
+    """
+
+    success: bool
+    qpos: np.ndarray
+    position_error: float
+    rotation_error: float
+    iterations: int
+    attempts: int
+    in_collision: bool
+
+
+@dataclass(frozen=True)
+class PathCheck:
+    """Outcome of :meth:`Arm.check_path`: whether the straight joint path is free and, if not,
+    the last free waypoint before the first collision."""
+
+    free: bool
+    last_free_qpos: np.ndarray
+    fraction: float
+    contacts: tuple[Contact, ...]
+
+
+@dataclass(frozen=True)
+class MotionResult:
+    """Outcome of :meth:`Arm.move_to`.
+
+    ``path_length`` is the joint-space distance actually travelled (sum of the Euclidean norms
+    of the joint increments, radians). ``sim_time`` is the simulated time the motion took
+    (0 for kinematic motion).
+    """
+
+    reached: bool
+    qpos: np.ndarray
+    path_length: float
+    collided: bool
+    contacts: tuple[Contact, ...]
+    sim_time: float
+    mode: str
+
+
+class Arm:
+    """The 6-DoF arm of a compiled tabletop scene.
+
+    Parameters
+    ----------
+    model, data:
+        A model compiled from :func:`liuxing_envs.sim.scene.load_scene_spec` (possibly with
+        objects added) and its live data.
+    path_check_step:
+        Largest displacement (m) of any point of the arm between collision-checked waypoints.
+    ik_seed:
+        Seed of the random restarts of the IK; fixed so the same query gives the same answer.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        *,
+        path_check_step: float = PATH_CHECK_STEP,
+        ik_seed: int = IK_SEED,
+    ) -> None:
+        if not path_check_step > 0:
+            raise ValueError(f"path_check_step must be > 0 m, got {path_check_step}")
+        self.model = model
+        self.data = data
+        self.path_check_step = float(path_check_step)
+        self.ik_seed = int(ik_seed)
+        self._scratch = mujoco.MjData(model)
+
+        joint_ids = np.array(
+            [_require_id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in ARM_JOINT_NAMES]
+        )
+        self._qpos_idx = model.jnt_qposadr[joint_ids].copy()
+        self._dof_idx = model.jnt_dofadr[joint_ids].copy()
+        self._actuator_ids = np.array(
+            [_require_id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in ARM_ACTUATOR_NAMES]
+        )
+        self.lower = model.jnt_range[joint_ids, 0].copy()
+        self.upper = model.jnt_range[joint_ids, 1].copy()
+
+        base_id = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, ARM_BASE_BODY)
+        arm_bodies = _subtree(model, base_id)
+        self._is_arm_geom = np.isin(model.geom_bodyid, arm_bodies)
+        self._site_ids: dict[str, int] = {}
+        self._jacp = np.zeros((3, model.nv))
+        self._jacr = np.zeros((3, model.nv))
+
+    # ------------------------------------------------------------------ state
+    @property
+    def qpos(self) -> np.ndarray:
+        """Current joint angles of the arm (rad), a copy."""
+        return self.data.qpos[self._qpos_idx].copy()
+
+    @property
+    def qvel(self) -> np.ndarray:
+        """Current joint velocities of the arm (rad/s), a copy."""
+        return self.data.qvel[self._dof_idx].copy()
+
+    def within_limits(self, qpos: np.ndarray) -> bool:
+        qpos = np.asarray(qpos)
+        return bool(np.all(qpos >= self.lower) and np.all(qpos <= self.upper))
+
+    def site_id(self, site: str) -> int:
+        if site not in self._site_ids:
+            self._site_ids[site] = _require_id(self.model, mujoco.mjtObj.mjOBJ_SITE, site)
+        return self._site_ids[site]
+
+    def site_pose(self, site: str = WRIST_CAMERA_SITE, qpos: np.ndarray | None = None):
+        """World position (3,) and rotation (3, 3) of a site, now or at configuration ``qpos``."""
+        sid = self.site_id(site)
+        d = self.data if qpos is None else self._pose_scratch(qpos)
+        return d.site_xpos[sid].copy(), d.site_xmat[sid].reshape(3, 3).copy()
+
+    # ------------------------------------------------------------- collisions
+    def collisions(self, qpos: np.ndarray | None = None) -> tuple[Contact, ...]:
+        """Contacts of the arm (with itself or the world) at ``qpos`` (default: now).
+
+        The rest of the world (objects, their poses) is taken from the live data.
+        """
+        d = self._pose_scratch(self.qpos if qpos is None else qpos)
+        mujoco.mj_collision(self.model, d)
+        return self._arm_contacts(d)
+
+    def in_collision(self, qpos: np.ndarray) -> bool:
+        return bool(self.collisions(qpos))
+
+    def check_path(self, q_from: np.ndarray, q_to: np.ndarray) -> PathCheck:
+        """Collision-check the straight joint-space path from ``q_from`` to ``q_to``."""
+        waypoints = self._waypoints(q_from, q_to)
+        last_free = np.asarray(q_from, dtype=float).copy()
+        for k, q in enumerate(waypoints):
+            contacts = self.collisions(q)
+            if contacts:
+                fraction = k / len(waypoints)
+                return PathCheck(False, last_free, fraction, contacts)
+            last_free = q
+        return PathCheck(True, last_free, 1.0, ())
+
+    # ------------------------------------------------------------------- IK
+    def solve_ik(
+        self,
+        position: np.ndarray,
+        rotation: np.ndarray | None = None,
+        *,
+        site: str = WRIST_CAMERA_SITE,
+        roll_free: bool = False,
+        seed_qpos: np.ndarray | None = None,
+        restarts: int = IK_RESTARTS,
+        check_collisions: bool = True,
+        position_tolerance: float = IK_POSITION_TOLERANCE,
+        rotation_tolerance: float = IK_ROTATION_TOLERANCE,
+        max_iterations: int = IK_MAX_ITERATIONS,
+    ) -> IKResult:
+        """Damped-least-squares IK of ``site`` to a world pose, within the joint limits.
+
+        Parameters
+        ----------
+        position:
+            Target position of the site in the world (m).
+        rotation:
+            Target 3x3 rotation of the site's frame, or None for position-only IK.
+        roll_free:
+            Constrain only the direction of the site's z axis (for a camera: its optical axis,
+            which is -z), leaving the roll about it free.
+        seed_qpos:
+            First initial guess (default: the current configuration); then home, then
+            ``restarts`` random configurations from a generator seeded with ``ik_seed``.
+        check_collisions:
+            Reject solutions in which the arm touches itself or the world.
+        """
+        target_p = _as_vector3(position, "position")
+        target_r = None if rotation is None else _as_rotation(rotation)
+        if roll_free and target_r is None:
+            raise ValueError("roll_free=True needs a rotation whose z axis to align")
+        if restarts < 0:
+            raise ValueError(f"restarts must be >= 0, got {restarts}")
+        sid = self.site_id(site)
+        reference = self.qpos if seed_qpos is None else np.asarray(seed_qpos, dtype=float)
+        rng = np.random.default_rng(self.ik_seed)
+        seeds = [reference, HOME_QPOS]
+        sample_lo, sample_hi = np.maximum(self.lower, -np.pi), np.minimum(self.upper, np.pi)
+        seeds += [rng.uniform(sample_lo, sample_hi) for _ in range(restarts)]
+
+        best: IKResult | None = None
+        total_iterations = 0
+        for attempt, seed in enumerate(seeds, start=1):
+            q, pos_err, rot_err, iterations = self._dls(
+                seed,
+                sid,
+                target_p,
+                target_r,
+                roll_free,
+                position_tolerance,
+                rotation_tolerance,
+                max_iterations,
+            )
+            total_iterations += iterations
+            converged = pos_err <= position_tolerance and rot_err <= rotation_tolerance
+            if not converged:
+                if best is None or pos_err + IK_ROTATION_WEIGHT * rot_err < (
+                    best.position_error + IK_ROTATION_WEIGHT * best.rotation_error
+                ):
+                    best = IKResult(False, q, pos_err, rot_err, total_iterations, attempt, False)
+                continue
+            q = self._nearest_equivalent(q, reference)
+            colliding = check_collisions and self.in_collision(q)
+            result = IKResult(
+                not colliding, q, pos_err, rot_err, total_iterations, attempt, colliding
+            )
+            if not colliding:
+                return result
+            if best is None or not best.in_collision:
+                best = result
+        assert best is not None
+        return IKResult(
+            False,
+            best.qpos,
+            best.position_error,
+            best.rotation_error,
+            total_iterations,
+            len(seeds),
+            best.in_collision,
+        )
+
+    def _dls(self, seed, sid, target_p, target_r, roll_free, pos_tol, rot_tol, max_iterations):
+        m, d = self.model, self._scratch
+        q = np.clip(np.asarray(seed, dtype=float), self.lower, self.upper)
+        weights = np.array(
+            [1.0, 1.0, 1.0, IK_ROTATION_WEIGHT, IK_ROTATION_WEIGHT, IK_ROTATION_WEIGHT]
+        )
+        rows = slice(0, 6) if target_r is not None else slice(0, 3)
+        pos_err = rot_err = np.inf
+        checkpoint_err = np.inf
+        for iteration in range(1, max_iterations + 1):
+            self._pose_scratch(q, copy_world=iteration == 1)
+            mujoco.mj_comPos(m, d)
+            err = np.zeros(6)
+            err[:3] = target_p - d.site_xpos[sid]
+            current_r = d.site_xmat[sid].reshape(3, 3)
+            if target_r is not None:
+                err[3:] = _rotation_error(current_r, target_r, roll_free)
+            pos_err = float(np.linalg.norm(err[:3]))
+            rot_err = float(np.linalg.norm(err[3:]))
+            if pos_err <= pos_tol and rot_err <= rot_tol:
+                return q, pos_err, rot_err, iteration
+            if iteration % IK_STALL_WINDOW == 0:
+                # A local minimum or a limit stops progress; a fresh seed does better.
+                combined = pos_err + IK_ROTATION_WEIGHT * rot_err
+                if combined > IK_STALL_RATIO * checkpoint_err:
+                    break
+                checkpoint_err = combined
+            mujoco.mj_jacSite(m, d, self._jacp, self._jacr, sid)
+            jac = np.vstack([self._jacp[:, self._dof_idx], self._jacr[:, self._dof_idx]])
+            jac_w = (jac * weights[:, None])[rows]
+            err_w = (err * weights)[rows]
+            lhs = jac_w @ jac_w.T + IK_DAMPING**2 * np.eye(jac_w.shape[0])
+            dq = jac_w.T @ np.linalg.solve(lhs, err_w)
+            step = np.linalg.norm(dq)
+            if step > IK_MAX_STEP:
+                dq *= IK_MAX_STEP / step
+            q = np.clip(q + dq, self.lower, self.upper)
+        return q, pos_err, rot_err, iteration
+
+    def _nearest_equivalent(self, q: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """Shift joints by whole turns towards ``reference`` where the limits allow it."""
+        turns = np.round((reference - q) / (2 * np.pi))
+        shifted = q + turns * 2 * np.pi
+        ok = (shifted >= self.lower) & (shifted <= self.upper)
+        return np.where(ok, shifted, q)
+
+    # ---------------------------------------------------------------- motion
+    def move_to(
+        self,
+        qpos: np.ndarray,
+        mode: str = "kinematic",
+        *,
+        max_joint_speed: float = DYNAMIC_MAX_JOINT_SPEED,
+        timeout: float = DYNAMIC_TIMEOUT,
+        settle_tolerance: float = DYNAMIC_SETTLE_TOLERANCE,
+    ) -> MotionResult:
+        """Move the live arm to joint configuration ``qpos`` (see the module docstring)."""
+        target = np.asarray(qpos, dtype=float)
+        if target.shape != (6,) or not np.all(np.isfinite(target)):
+            raise ValueError(f"qpos must be 6 finite joint angles, got {qpos!r}")
+        if not self.within_limits(target):
+            raise ValueError(
+                f"qpos {np.round(target, 4).tolist()} is outside the joint limits "
+                f"[{self.lower.round(4).tolist()}, {self.upper.round(4).tolist()}]"
+            )
+        if mode == "kinematic":
+            return self._move_kinematic(target)
+        if mode == "dynamic":
+            return self._move_dynamic(target, max_joint_speed, timeout, settle_tolerance)
+        raise ValueError(f"unknown motion mode {mode!r}; allowed: {MOTION_MODES}")
+
+    def _move_kinematic(self, target: np.ndarray) -> MotionResult:
+        start = self.qpos
+        check = self.check_path(start, target)
+        final = target if check.free else check.last_free_qpos
+        self.set_qpos(final)
+        return MotionResult(
+            reached=check.free,
+            qpos=final.copy(),
+            path_length=float(np.linalg.norm(final - start)),
+            collided=not check.free,
+            contacts=check.contacts,
+            sim_time=0.0,
+            mode="kinematic",
+        )
+
+    def _move_dynamic(self, target, max_joint_speed, timeout, settle_tolerance) -> MotionResult:
+        m, d = self.model, self.data
+        start = self.qpos
+        delta = target - start
+        duration = float(np.max(np.abs(delta))) / max_joint_speed
+        substeps = max(1, round(DYNAMIC_CONTROL_PERIOD / m.opt.timestep))
+        period = substeps * m.opt.timestep
+        t = 0.0
+        previous = start
+        path_length = 0.0
+        while t < timeout:
+            progress = min(1.0, t / duration) if duration > 0 else 1.0
+            d.ctrl[self._actuator_ids] = start + _smoothstep(progress) * delta
+            mujoco.mj_step(m, d, nstep=substeps)
+            t += period
+            q = self.qpos
+            path_length += float(np.linalg.norm(q - previous))
+            previous = q
+            contacts = self._arm_contacts(d)
+            if contacts:
+                d.ctrl[self._actuator_ids] = q
+                return MotionResult(False, q, path_length, True, contacts, t, "dynamic")
+            settled = (
+                progress >= 1.0
+                and np.max(np.abs(q - target)) <= settle_tolerance
+                and np.max(np.abs(self.qvel)) <= DYNAMIC_SETTLE_SPEED
+            )
+            if settled:
+                return MotionResult(True, q, path_length, False, (), t, "dynamic")
+        return MotionResult(False, self.qpos, path_length, False, (), t, "dynamic")
+
+    def set_qpos(self, qpos: np.ndarray) -> None:
+        """Teleport the live arm to ``qpos`` at rest, hold it there, and update kinematics."""
+        self.data.qpos[self._qpos_idx] = qpos
+        self.data.qvel[self._dof_idx] = 0.0
+        self.data.ctrl[self._actuator_ids] = qpos
+        mujoco.mj_forward(self.model, self.data)
+
+    # --------------------------------------------------------------- helpers
+    def _pose_scratch(self, qpos: np.ndarray, copy_world: bool = True) -> mujoco.MjData:
+        d = self._scratch
+        if copy_world:
+            d.qpos[:] = self.data.qpos
+            d.mocap_pos[:] = self.data.mocap_pos
+            d.mocap_quat[:] = self.data.mocap_quat
+        d.qpos[self._qpos_idx] = qpos
+        mujoco.mj_kinematics(self.model, d)
+        return d
+
+    def _arm_contacts(self, d: mujoco.MjData) -> tuple[Contact, ...]:
+        if d.ncon == 0:
+            return ()
+        geoms = d.contact.geom[: d.ncon]
+        dist = d.contact.dist[: d.ncon]
+        hits = np.flatnonzero(
+            (self._is_arm_geom[geoms[:, 0]] | self._is_arm_geom[geoms[:, 1]])
+            & (dist < -PENETRATION_TOLERANCE)
+        )
+        return tuple(
+            Contact(
+                self.model.geom(geoms[i, 0]).name,
+                self.model.geom(geoms[i, 1]).name,
+                -float(dist[i]),
+            )
+            for i in hits
+        )
+
+    def _waypoints(self, q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
+        q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
+        sweep = float(np.abs(q_to - q_from) @ JOINT_LEVER_ARMS)
+        count = max(1, int(np.ceil(sweep / self.path_check_step)))
+        fractions = np.arange(1, count + 1)[:, None] / count
+        return q_from + fractions * (q_to - q_from)
+
+
+def _smoothstep(s: float) -> float:
+    """Zero-velocity start and end for the dynamic set-point (cubic ease)."""
+    return s * s * (3.0 - 2.0 * s)
+
+
+def _rotation_error(current: np.ndarray, target: np.ndarray, roll_free: bool) -> np.ndarray:
+    """World-frame rotation vector that turns ``current`` into ``target`` (or just its z axis)."""
+    if roll_free:
+        a, b = current[:, 2], target[:, 2]
+        axis = np.cross(a, b)
+        sin = np.linalg.norm(axis)
+        angle = np.arctan2(sin, float(a @ b))
+        if sin < 1e-12:
+            if angle < 1e-6:
+                return np.zeros(3)
+            axis, sin = current[:, 0], 1.0  # opposite axes: any perpendicular turn works
+        return axis / sin * angle
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, (target @ current.T).ravel())
+    rotvec = np.empty(3)
+    mujoco.mju_quat2Vel(rotvec, quat, 1.0)
+    return rotvec
+
+
+def _as_vector3(value, name: str) -> np.ndarray:
+    vec = np.asarray(value, dtype=float)
+    if vec.shape != (3,) or not np.all(np.isfinite(vec)):
+        raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
+    return vec
+
+
+def _as_rotation(value) -> np.ndarray:
+    rot = np.asarray(value, dtype=float)
+    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
+        raise ValueError(f"rotation must be a finite 3x3 matrix, got shape {rot.shape}")
+    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+        raise ValueError("rotation must be a proper rotation matrix (orthonormal, det +1)")
+    return rot
+
+
+def _require_id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str) -> int:
+    idx = mujoco.mj_name2id(model, obj, name)
+    if idx < 0:
+        kind = obj.name.removeprefix("mjOBJ_").lower()
+        raise ValueError(f"the model has no {kind} named {name!r}; is it a liuxing_envs scene?")
+    return idx
+
+
+def _subtree(model: mujoco.MjModel, root: int) -> np.ndarray:
+    """Ids of ``root`` and every body below it."""
+    inside = np.zeros(model.nbody, dtype=bool)
+    inside[root] = True
+    for body in range(root + 1, model.nbody):  # parents always precede children
+        inside[body] = inside[model.body_parentid[body]]
+    return np.flatnonzero(inside)

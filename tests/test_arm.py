@@ -1,0 +1,203 @@
+"""Arm: IK reach and accuracy, joint limits, collision checks, kinematic and dynamic motion."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from liuxing_envs.sim.arm import Arm
+from liuxing_envs.sim.scene import HOME_QPOS, WRIST_CAMERA_SITE, load_scene_model, reset_to_home
+from liuxing_envs.sim.viewpoints import look_at, sphere_viewpoint
+
+TABLE_POINT = np.array([0.5, 0.0, 0.0])  # on the table, in front of the arm
+
+
+@pytest.fixture
+def sim():
+    model = load_scene_model()
+    data = mujoco.MjData(model)
+    reset_to_home(model, data)
+    return model, data, Arm(model, data)
+
+
+def independent_site_pose(model, qpos, site=WRIST_CAMERA_SITE):
+    """Site pose from a fresh MjData, so nothing the Arm caches can agree with itself."""
+    data = mujoco.MjData(model)
+    data.qpos[:6] = qpos
+    mujoco.mj_forward(model, data)
+    return data.site(site).xpos.copy(), data.site(site).xmat.reshape(3, 3).copy()
+
+
+def rotation_angle(a, b):
+    return np.arccos(np.clip((np.trace(a.T @ b) - 1) / 2, -1, 1))
+
+
+def hemisphere_views():
+    for radius in (0.30, 0.375, 0.45):
+        for elevation in np.deg2rad([20, 35, 50, 65, 80]):
+            for azimuth in np.deg2rad(np.arange(0, 360, 30)):
+                yield sphere_viewpoint(TABLE_POINT, azimuth, elevation, radius)
+        yield sphere_viewpoint(TABLE_POINT, 0.0, np.pi / 2, radius)
+
+
+def test_ik_reaches_most_of_the_view_hemisphere_accurately(sim):
+    model, data, arm = sim
+    views = list(hemisphere_views())
+    reached = 0
+    for eye, rotation in views:
+        result = arm.solve_ik(eye, rotation)
+        if not result.success:
+            continue
+        reached += 1
+        assert arm.within_limits(result.qpos)
+        assert not arm.in_collision(result.qpos)
+        position, actual = independent_site_pose(model, result.qpos)
+        assert np.linalg.norm(position - eye) < 2e-3
+        assert rotation_angle(actual, rotation) < np.deg2rad(1.0)
+    assert reached / len(views) >= 0.8, f"reached {reached} of {len(views)} viewpoints"
+    np.testing.assert_allclose(arm.qpos, HOME_QPOS, atol=1e-6)  # asking moved nothing
+
+
+def test_ik_is_deterministic_and_prefers_the_nearest_equivalent_angles(sim):
+    _, _, arm = sim
+    eye, rotation = sphere_viewpoint(TABLE_POINT, np.deg2rad(120), np.deg2rad(50), 0.4)
+    first, second = arm.solve_ik(eye, rotation), arm.solve_ik(eye, rotation)
+    assert first.success
+    np.testing.assert_array_equal(first.qpos, second.qpos)
+    assert np.all(np.abs(first.qpos - HOME_QPOS) <= np.pi + 1e-9)
+
+
+def test_ik_respects_narrowed_joint_limits():
+    model = load_scene_model()
+    model.jnt_range[2] = [0.5, 2.5]  # elbow may only bend one way, and not fully
+    data = mujoco.MjData(model)
+    data.qpos[:] = [-1.57, -1.57, 1.57, -1.57, -1.57, 0]
+    mujoco.mj_forward(model, data)
+    arm = Arm(model, data)
+    eye, rotation = sphere_viewpoint(TABLE_POINT, np.deg2rad(90), np.deg2rad(60), 0.35)
+    result = arm.solve_ik(eye, rotation)
+    assert result.success
+    assert 0.5 <= result.qpos[2] <= 2.5
+
+
+def test_unreachable_pose_is_reported_after_every_restart(sim):
+    _, _, arm = sim
+    result = arm.solve_ik([2.0, 0.0, 0.5], np.eye(3), restarts=5)
+    assert not result.success
+    assert result.attempts == 7  # current, home, then five random seeds
+    assert result.position_error > 0.5
+
+
+def test_roll_free_ik_aligns_only_the_optical_axis(sim):
+    model, _, arm = sim
+    eye = np.array([0.5, 0.35, 0.3])
+    rotation = look_at(eye, TABLE_POINT)
+    result = arm.solve_ik(eye, rotation, roll_free=True)
+    assert result.success
+    position, actual = independent_site_pose(model, result.qpos)
+    assert np.linalg.norm(position - eye) < 2e-3
+    assert np.arccos(np.clip(actual[:, 2] @ rotation[:, 2], -1, 1)) < np.deg2rad(1.0)
+
+
+def test_ik_rejects_malformed_targets(sim):
+    _, _, arm = sim
+    with pytest.raises(ValueError, match="position must be 3 finite numbers"):
+        arm.solve_ik([0.5, np.nan, 0.3])
+    with pytest.raises(ValueError, match="proper rotation"):
+        arm.solve_ik([0.5, 0.0, 0.3], np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(ValueError, match="no site named 'nope'"):
+        arm.solve_ik([0.5, 0.0, 0.3], site="nope")
+
+
+def wrist_into_table(arm):
+    target = arm.qpos.copy()
+    target[1] += 0.9  # shoulder lift swings the wrist down through the table top
+    return target
+
+
+def test_collision_checks_name_the_contact_and_leave_the_simulation_alone(sim):
+    _, data, arm = sim
+    before = data.qpos.copy()
+    assert arm.collisions() == ()
+    contacts = arm.collisions(wrist_into_table(arm))
+    assert contacts and any("table_top" in (c.geom1, c.geom2) for c in contacts)
+    assert all(c.depth > 0 for c in contacts)
+    np.testing.assert_array_equal(data.qpos, before)
+
+
+def test_path_check_finds_the_last_free_waypoint(sim):
+    _, _, arm = sim
+    target = wrist_into_table(arm)
+    check = arm.check_path(arm.qpos, target)
+    assert not check.free and 0 < check.fraction < 1
+    assert not arm.in_collision(check.last_free_qpos)
+    # The arm's surface moves at most path_check_step between checks, so the last free
+    # waypoint is within a few steps of the contact.
+    assert arm.check_path(arm.qpos, HOME_QPOS + 0.3).free
+
+
+def test_kinematic_move_reaches_and_reports_its_path(sim):
+    model, data, arm = sim
+    eye, rotation = sphere_viewpoint(TABLE_POINT, np.deg2rad(200), np.deg2rad(45), 0.4)
+    ik = arm.solve_ik(eye, rotation)
+    result = arm.move_to(ik.qpos, "kinematic")
+    assert result.reached and not result.collided
+    np.testing.assert_allclose(arm.qpos, ik.qpos)
+    assert result.path_length == pytest.approx(np.linalg.norm(ik.qpos - HOME_QPOS))
+    camera_position, _ = arm.site_pose()
+    assert np.linalg.norm(camera_position - eye) < 2e-3
+    np.testing.assert_array_equal(data.ctrl, ik.qpos)  # the servos hold the new pose
+
+
+def test_kinematic_move_into_the_table_stops_before_contact(sim):
+    _, _, arm = sim
+    result = arm.move_to(wrist_into_table(arm), "kinematic")
+    assert result.collided and not result.reached
+    assert any("table_top" in (c.geom1, c.geom2) for c in result.contacts)
+    assert arm.collisions() == ()
+    np.testing.assert_allclose(arm.qpos, result.qpos)
+
+
+def test_dynamic_move_settles_on_target_under_physics(sim):
+    model, data, arm = sim
+    eye, rotation = sphere_viewpoint(TABLE_POINT, np.deg2rad(90), np.deg2rad(45), 0.4)
+    ik = arm.solve_ik(eye, rotation)
+    result = arm.move_to(ik.qpos, "dynamic")
+    assert result.reached and not result.collided
+    assert result.sim_time > 1.0  # 1 rad/s joint speed limit over a > 1 rad move
+    assert np.max(np.abs(arm.qpos - ik.qpos)) <= 1e-3
+    assert result.path_length >= 0.99 * np.linalg.norm(ik.qpos - HOME_QPOS)
+    camera_position, _ = arm.site_pose()
+    assert np.linalg.norm(camera_position - eye) < 2e-3
+    assert np.sum(data.warning.number) == 0
+
+
+def test_dynamic_move_into_the_table_makes_a_protective_stop(sim):
+    _, data, arm = sim
+    result = arm.move_to(wrist_into_table(arm), "dynamic")
+    assert result.collided and not result.reached
+    assert any("table_top" in (c.geom1, c.geom2) for c in result.contacts)
+    np.testing.assert_allclose(data.ctrl, result.qpos)
+
+
+def test_dynamic_move_times_out_honestly(sim):
+    _, _, arm = sim
+    target = HOME_QPOS.copy()
+    target[0] += 2.0
+    result = arm.move_to(target, "dynamic", timeout=0.5)
+    assert not result.reached and not result.collided
+    assert result.sim_time == pytest.approx(0.5, abs=0.011)
+
+
+@pytest.mark.parametrize(
+    ("qpos", "mode", "message"),
+    [
+        (np.zeros(5), "kinematic", "6 finite joint angles"),
+        (np.full(6, np.nan), "kinematic", "6 finite joint angles"),
+        (np.array([0, 0, 4.0, 0, 0, 0]), "kinematic", "outside the joint limits"),
+        (HOME_QPOS, "teleport", "allowed: \\('kinematic', 'dynamic'\\)"),
+    ],
+)
+def test_move_rejects_bad_input(sim, qpos, mode, message):
+    _, _, arm = sim
+    with pytest.raises(ValueError, match=message):
+        arm.move_to(qpos, mode)
