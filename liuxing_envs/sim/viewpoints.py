@@ -46,3 +46,18 @@ def sphere_viewpoint(center, azimuth: float, elevation: float, radius: float):
     """Camera position and look-at rotation for the view from (azimuth, elevation, radius)."""
     eye = sphere_point(center, azimuth, elevation, radius)
     return eye, look_at(eye, center)
+
+
+def view_grid(center, radii, elevations, azimuths) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Viewpoints (position, rotation) at every (radius, elevation, azimuth) combination.
+
+    A view at elevation pi/2 (straight down) is the same for every azimuth, so it is listed
+    once per radius.
+    """
+    views = []
+    for radius in radii:
+        for elevation in elevations:
+            overhead = np.isclose(elevation, np.pi / 2)
+            for azimuth in azimuths[:1] if overhead else azimuths:
+                views.append(sphere_viewpoint(center, azimuth, elevation, radius))
+    return views

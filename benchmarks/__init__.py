@@ -1,0 +1,1 @@
+"""Benchmarks of liuxing_envs; each module runs with ``python -m benchmarks.<name>``."""

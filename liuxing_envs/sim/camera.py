@@ -1,0 +1,674 @@
+"""A simulated depth camera (RealSense D435-like) on a MuJoCo camera, with optional noise.
+
+Two interchangeable backends produce the same depth image:
+
+* ``"gl"``: MuJoCo's OpenGL renderer (:class:`mujoco.Renderer`) reading the depth buffer.
+  Needs an OpenGL context; on a headless machine set ``MUJOCO_GL=egl`` (or ``osmesa``)
+  *before* ``mujoco`` is first imported.
+* ``"raycast"``: one :func:`mujoco.mj_multiRay` ray per pixel centre. No GL needed; geoms are
+  intersected analytically (GL draws curved primitives as tessellated meshes, so the two can
+  differ by a fraction of a millimetre on spheres and cylinders).
+
+Both see the geoms in :data:`DEPTH_GEOM_GROUPS` and nothing else (no sites, tendons, ...).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import mujoco
+import numpy as np
+
+from liuxing_envs.perception.pointcloud import (
+    camera_rays,
+    depth_to_camera_points,
+    transform_points,
+)
+from liuxing_envs.sim.scene import WRIST_CAMERA
+
+__all__ = [
+    "BACKENDS",
+    "DEFAULT_BACKEND",
+    "DEFAULT_INTRINSICS",
+    "DEPTH_GEOM_GROUPS",
+    "REALSENSE_D435_DEPTH",
+    "CameraIntrinsics",
+    "DepthCamera",
+    "DepthNoise",
+    "crop_depth_range",
+    "grazing_mask",
+]
+
+# --- defaults --------------------------------------------------------------------------------
+
+DEFAULT_WIDTH = 64
+DEFAULT_HEIGHT = 64
+#: Vertical field of view of the RealSense D435 depth stream, degrees.
+DEFAULT_FOVY_DEG = 58.0
+#: The D435's usable depth range in metres (minimum z at its default resolution).
+DEFAULT_MIN_DEPTH = 0.105
+DEFAULT_MAX_DEPTH = 3.0
+
+#: Geom groups a depth camera sees, shared by both backends so they agree: 0 (arm, table),
+#: 1 and 2 (floor); MuJoCo's own default visibility. Groups 3-5 (collision-only or helper
+#: geoms by convention) are invisible to the camera.
+DEPTH_GEOM_GROUPS: tuple[int, ...] = (0, 1, 2)
+
+BACKENDS: tuple[str, ...] = ("auto", "gl", "raycast")
+DEFAULT_BACKEND = "auto"
+
+# RealSense-like noise preset. Stereo depth error grows with z^2: sigma_z = z^2 * e / (f * b)
+# with subpixel error e ~ 0.08 px, f ~ 447 px (848 px wide, 87 deg) and baseline b = 50 mm,
+# i.e. ~0.0036 m at 1 m; a small floor stands for the residual error at close range.
+REALSENSE_SIGMA_BASE = 0.0005
+REALSENSE_SIGMA_QUADRATIC = 0.0031
+#: The D435's default depth unit (z16 stream in millimetres).
+REALSENSE_QUANTIZATION = 0.001
+#: Active stereo loses the projected pattern on surfaces seen this obliquely.
+REALSENSE_GRAZING_DROPOUT_DEG = 75.0
+REALSENSE_DROPOUT_PROB = 0.01
+
+# Tessellation of spheres, cylinders and capsules in the GL depth renderer's context.
+_GL_MIN_SLICES = 48
+_GL_MIN_STACKS = 24
+
+# Extra length allowed on a ray beyond the longest one that can still be in range, so the
+# cut-off never clips a return that the range crop would keep.
+_RAY_CUTOFF_MARGIN = 1.01
+
+
+# --- intrinsics ------------------------------------------------------------------------------
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+@dataclass(frozen=True, kw_only=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics and valid depth range of a depth camera (square pixels).
+
+    Follows OpenCV: pixel (row i, column j) has its centre at (u, v) = (j + 0.5, i + 0.5),
+    ``fy = (height / 2) / tan(fovy / 2)``, ``fx = fy``, ``(cx, cy) = (width / 2, height / 2)``.
+
+    Parameters
+    ----------
+    width, height
+        Image size in pixels.
+    fovy_deg
+        Full vertical field of view in degrees (MuJoCo's camera ``fovy``).
+    min_depth, max_depth
+        Valid z-depth range in metres; returns outside it read 0 (no data).
+    """
+
+    width: int = DEFAULT_WIDTH
+    height: int = DEFAULT_HEIGHT
+    fovy_deg: float = DEFAULT_FOVY_DEG
+    min_depth: float = DEFAULT_MIN_DEPTH
+    max_depth: float = DEFAULT_MAX_DEPTH
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if not _is_int(value) or value < 1:
+                raise ValueError(
+                    f"CameraIntrinsics.{name} must be an integer >= 1 (pixels), got {value!r}"
+                )
+        if not (math.isfinite(self.fovy_deg) and 0.0 < self.fovy_deg < 180.0):
+            raise ValueError(
+                "CameraIntrinsics.fovy_deg must be in the open interval (0, 180) degrees, "
+                f"got {self.fovy_deg!r}"
+            )
+        if not (math.isfinite(self.min_depth) and self.min_depth > 0.0):
+            raise ValueError(
+                f"CameraIntrinsics.min_depth must be a finite number > 0 (metres), "
+                f"got {self.min_depth!r}"
+            )
+        if not (math.isfinite(self.max_depth) and self.max_depth > self.min_depth):
+            raise ValueError(
+                f"CameraIntrinsics.max_depth must be finite and > min_depth "
+                f"({self.min_depth} m), got {self.max_depth!r}"
+            )
+
+    @property
+    def fy(self) -> float:
+        """Vertical focal length in pixels."""
+        return (self.height / 2.0) / math.tan(math.radians(self.fovy_deg) / 2.0)
+
+    @property
+    def fx(self) -> float:
+        """Horizontal focal length in pixels (square pixels: equal to ``fy``)."""
+        return self.fy
+
+    @property
+    def cx(self) -> float:
+        """Principal point, column coordinate (pixel centres at integer + 0.5)."""
+        return self.width / 2.0
+
+    @property
+    def cy(self) -> float:
+        """Principal point, row coordinate (pixel centres at integer + 0.5)."""
+        return self.height / 2.0
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The 3x3 camera matrix K (OpenCV convention: x right, y down, z forward)."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def fovx_deg(self) -> float:
+        """Full horizontal field of view in degrees."""
+        return math.degrees(2.0 * math.atan(self.width / (2.0 * self.fx)))
+
+
+#: The D435's native depth stream (848 x 480); its horizontal FOV comes out ~89 deg (spec 87).
+REALSENSE_D435_DEPTH = CameraIntrinsics(
+    width=848,
+    height=480,
+    fovy_deg=DEFAULT_FOVY_DEG,
+    min_depth=DEFAULT_MIN_DEPTH,
+    max_depth=DEFAULT_MAX_DEPTH,
+)
+DEFAULT_INTRINSICS = CameraIntrinsics()
+
+
+def crop_depth_range(depth: np.ndarray, min_depth: float, max_depth: float) -> np.ndarray:
+    """Set pixels outside ``[min_depth, max_depth]`` (or not finite) to 0, in place."""
+    outside = ~((depth >= min_depth) & (depth <= max_depth))
+    depth[outside] = 0.0
+    return depth
+
+
+# --- noise -----------------------------------------------------------------------------------
+
+
+def _one_sided_tangent(
+    points: tuple[np.ndarray, np.ndarray, np.ndarray], valid: np.ndarray, axis: int
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    """Per-pixel tangent (x, y, z components, each ``(H, W)``) along an image axis, and the
+    ``(H, W)`` mask of pixels that have one.
+
+    Of the forward and backward differences, the one with the smaller depth jump is taken so
+    that a pixel next to a silhouette uses its own surface, not the one behind it.
+    """
+    if axis == 0:
+        tangent, has = _one_sided_tangent(tuple(c.T for c in points), valid.T, 1)
+        return tuple(c.T for c in tangent), has.T
+    height, width = valid.shape
+    if width < 2:
+        zeros = np.zeros((height, width))
+        return (zeros, zeros, zeros), np.zeros((height, width), dtype=bool)
+    pair_valid = valid[:, 1:] & valid[:, :-1]
+    jump_fwd = np.full((height, width), np.inf)
+    jump_bwd = np.full((height, width), np.inf)
+    pair_jump = np.where(pair_valid, np.abs(points[2][:, 1:] - points[2][:, :-1]), np.inf)
+    jump_fwd[:, :-1] = pair_jump
+    jump_bwd[:, 1:] = pair_jump
+    use_fwd = jump_fwd <= jump_bwd
+    tangent = []
+    for component in points:
+        diff = component[:, 1:] - component[:, :-1]
+        fwd = np.zeros((height, width))
+        fwd[:, :-1] = diff
+        bwd = np.zeros((height, width))
+        bwd[:, 1:] = diff
+        tangent.append(np.where(use_fwd, fwd, bwd))
+    return (tangent[0], tangent[1], tangent[2]), np.isfinite(np.minimum(jump_fwd, jump_bwd))
+
+
+def grazing_mask(
+    depth: np.ndarray, intrinsics: CameraIntrinsics, max_angle_deg: float
+) -> np.ndarray:
+    """Valid pixels whose surface normal is more than ``max_angle_deg`` from the viewing ray.
+
+    Normals come from finite differences of the depth image itself (so the result does not
+    depend on the backend); within one pixel of a silhouette they can mix two surfaces.
+    Pixels without a valid neighbour along both image axes are never flagged.
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    valid = depth > 0
+    rays = camera_rays(intrinsics, "z")
+    rx, ry, rz = rays[..., 0], rays[..., 1], rays[..., 2]
+    points = (rx * depth, ry * depth, rz * depth)
+    (ux, uy, uz), has_u = _one_sided_tangent(points, valid, axis=1)
+    (vx, vy, vz), has_v = _one_sided_tangent(points, valid, axis=0)
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    dot = nx * rx + ny * ry + nz * rz
+    n_sq = nx * nx + ny * ny + nz * nz
+    r_sq = rx * rx + ry * ry + rz * rz
+    cos_max = math.cos(math.radians(max_angle_deg))
+    # Squared cosines: no square roots needed.
+    steep = dot * dot < (cos_max * cos_max) * n_sq * r_sq
+    return valid & has_u & has_v & (n_sq > 0) & steep
+
+
+@dataclass(frozen=True, kw_only=True)
+class DepthNoise:
+    """A simple per-pixel depth-sensor noise model; every effect is off by default.
+
+    Applied in this order to the clean z-depth ``z`` (pixels already 0 stay 0):
+
+    1. ``grazing_dropout_deg``: pixels whose surface normal is more than this many degrees
+       from the viewing ray read 0 (stereo matching fails on steep surfaces). Normals are
+       estimated from the depth image's own finite differences. ``None`` = off.
+    2. Gaussian noise ``z + N(0, sigma(z)^2)`` with ``sigma(z) = sigma_base +
+       sigma_quadratic * z^2`` (stereo error grows with z^2); ``sigma_base`` in m,
+       ``sigma_quadratic`` in 1/m. Noise is i.i.d. per pixel at the simulated resolution.
+    3. ``quantization``: depth rounded to multiples of this step in m (0 = none).
+    4. ``dropout_prob``: each pixel independently reads 0 with this probability.
+    5. Pixels pushed outside the intrinsics' ``[min_depth, max_depth]`` read 0.
+
+    :meth:`realsense_like` gives D435-like values (sigma ~ 3.6 mm at 1 m).
+    """
+
+    sigma_base: float = 0.0
+    sigma_quadratic: float = 0.0
+    quantization: float = 0.0
+    grazing_dropout_deg: float | None = None
+    dropout_prob: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, unit in (
+            ("sigma_base", "m"),
+            ("sigma_quadratic", "1/m"),
+            ("quantization", "m"),
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(
+                    f"DepthNoise.{name} must be a finite number >= 0 ({unit}), got {value!r}"
+                )
+        angle = self.grazing_dropout_deg
+        if angle is not None and not (math.isfinite(angle) and 0.0 < angle < 90.0):
+            raise ValueError(
+                "DepthNoise.grazing_dropout_deg must be None (off) or in the open interval "
+                f"(0, 90) degrees, got {angle!r}"
+            )
+        if not (math.isfinite(self.dropout_prob) and 0.0 <= self.dropout_prob <= 1.0):
+            raise ValueError(
+                f"DepthNoise.dropout_prob must be in [0, 1], got {self.dropout_prob!r}"
+            )
+
+    @classmethod
+    def realsense_like(cls) -> DepthNoise:
+        """D435-like noise: ~0.5 mm + 3.1 mm/m^2 z^2, 1 mm steps, 75 deg grazing, 1 % dropout."""
+        return cls(
+            sigma_base=REALSENSE_SIGMA_BASE,
+            sigma_quadratic=REALSENSE_SIGMA_QUADRATIC,
+            quantization=REALSENSE_QUANTIZATION,
+            grazing_dropout_deg=REALSENSE_GRAZING_DROPOUT_DEG,
+            dropout_prob=REALSENSE_DROPOUT_PROB,
+        )
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any effect is on (an all-off model leaves images untouched)."""
+        return (
+            self.sigma_base > 0.0
+            or self.sigma_quadratic > 0.0
+            or self.quantization > 0.0
+            or self.grazing_dropout_deg is not None
+            or self.dropout_prob > 0.0
+        )
+
+    def sigma(self, depth: np.ndarray) -> np.ndarray:
+        """Standard deviation of the Gaussian depth noise at z-depth ``depth`` (metres)."""
+        depth = np.asarray(depth, dtype=np.float64)
+        return self.sigma_base + self.sigma_quadratic * depth**2
+
+    def apply(
+        self, depth: np.ndarray, intrinsics: CameraIntrinsics, rng: np.random.Generator
+    ) -> np.ndarray:
+        """A noisy float32 copy of the z-depth image ``depth`` (0 = invalid); see the class doc."""
+        depth = np.asarray(depth)
+        expected = (intrinsics.height, intrinsics.width)
+        if depth.shape != expected:
+            raise ValueError(f"depth has shape {depth.shape}, expected {expected}")
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(
+                f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
+                "use numpy.random.default_rng(seed)"
+            )
+        z = depth.astype(np.float64)
+        valid = np.isfinite(z) & (z > 0)
+        z[~valid] = 0.0
+        if self.grazing_dropout_deg is not None:
+            valid &= ~grazing_mask(z, intrinsics, self.grazing_dropout_deg)
+        if self.sigma_base > 0.0 or self.sigma_quadratic > 0.0:
+            z = z + rng.standard_normal(z.shape) * self.sigma(z)
+        if self.quantization > 0.0:
+            z = np.round(z / self.quantization) * self.quantization
+        if self.dropout_prob > 0.0:
+            valid &= rng.random(z.shape) >= self.dropout_prob
+        z[~valid] = 0.0
+        out = z.astype(np.float32)
+        return crop_depth_range(out, intrinsics.min_depth, intrinsics.max_depth)
+
+
+# --- backends --------------------------------------------------------------------------------
+
+
+class _Backend(Protocol):
+    name: str
+
+    def render(self, data: mujoco.MjData) -> np.ndarray: ...
+
+    def close(self) -> None: ...
+
+
+def _group_mask(groups: Sequence[int]) -> np.ndarray:
+    mask = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
+    mask[list(groups)] = 1
+    return mask
+
+
+class _GLBackend:
+    """Depth buffer of MuJoCo's offscreen OpenGL renderer."""
+
+    name = "gl"
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        camera_id: int,
+        intrinsics: CameraIntrinsics,
+        geom_groups: Sequence[int],
+    ) -> None:
+        extent = float(model.stat.extent)
+        near, far = model.vis.map.znear * extent, model.vis.map.zfar * extent
+        if near > intrinsics.min_depth or far < intrinsics.max_depth:
+            warnings.warn(
+                f"the model's GL clip planes [{near:.4g}, {far:.4g}] m (visual/map znear, zfar "
+                f"times the extent) do not cover the depth range [{intrinsics.min_depth}, "
+                f"{intrinsics.max_depth}] m; the gl backend will miss returns outside them",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+        glob = model.vis.global_
+        glob.offwidth = max(int(glob.offwidth), intrinsics.width)
+        glob.offheight = max(int(glob.offheight), intrinsics.height)
+        # Resolving a multisampled depth buffer keeps one driver-chosen sample per pixel, not
+        # necessarily the centre the ray caster uses (on a tilted surface, millimetres off), so
+        # this context is made without multisampling. Curved primitives are tessellated at the
+        # same moment; finer meshes keep GL within ~0.4 mm of the analytic surface (MuJoCo's
+        # default 28 x 16: ~1 mm). These settings are read only while a context is created, so
+        # they are borrowed and restored: other renderers on the model keep theirs.
+        quality = model.vis.quality
+        saved = (int(quality.offsamples), int(quality.numslices), int(quality.numstacks))
+        quality.offsamples = 0
+        quality.numslices = max(saved[1], _GL_MIN_SLICES)
+        quality.numstacks = max(saved[2], _GL_MIN_STACKS)
+        try:
+            self._renderer: mujoco.Renderer | None = mujoco.Renderer(
+                model, height=intrinsics.height, width=intrinsics.width
+            )
+        finally:
+            quality.offsamples, quality.numslices, quality.numstacks = saved
+        self._renderer.enable_depth_rendering()
+
+        option = mujoco.MjvOption()
+        option.geomgroup[:] = _group_mask(geom_groups)
+        option.sitegroup[:] = 0
+        # Only geoms are in the depth image (the ray-cast backend cannot see anything else).
+        option.tendongroup[:] = 0
+        option.skingroup[:] = 0
+        option.flexgroup[:] = 0
+        for flag in (mujoco.mjtVisFlag.mjVIS_RANGEFINDER, mujoco.mjtVisFlag.mjVIS_TENDON):
+            option.flags[flag] = 0
+        self._option = option
+
+        # Effects that cost time but cannot change the depth buffer.
+        flags = self._renderer.scene.flags
+        for flag in (
+            mujoco.mjtRndFlag.mjRND_SHADOW,
+            mujoco.mjtRndFlag.mjRND_REFLECTION,
+            mujoco.mjtRndFlag.mjRND_SKYBOX,
+            mujoco.mjtRndFlag.mjRND_FOG,
+            mujoco.mjtRndFlag.mjRND_HAZE,
+        ):
+            flags[flag] = 0
+
+        camera = mujoco.MjvCamera()
+        camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        camera.fixedcamid = camera_id
+        self._camera = camera
+
+    def render(self, data: mujoco.MjData) -> np.ndarray:
+        assert self._renderer is not None
+        self._renderer.update_scene(data, camera=self._camera, scene_option=self._option)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+class _RaycastBackend:
+    """One :func:`mujoco.mj_multiRay` ray per pixel centre."""
+
+    name = "raycast"
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        camera_id: int,
+        intrinsics: CameraIntrinsics,
+        geom_groups: Sequence[int],
+    ) -> None:
+        self._model = model
+        self._camera_id = camera_id
+        self._shape = (intrinsics.height, intrinsics.width)
+        unit_rays = camera_rays(intrinsics, "unit").reshape(-1, 3)
+        self._rays_cam = np.ascontiguousarray(unit_rays)
+        # z-depth = ray length * cos(angle to the optical axis) = length * (-unit_z).
+        self._cos_axis = -unit_rays[:, 2].copy()
+        self._geomgroup = _group_mask(geom_groups)
+        self._nray = unit_rays.shape[0]
+        self._geomid = np.empty(self._nray, dtype=np.int32)
+        self._dist = np.empty(self._nray, dtype=np.float64)
+        self._cutoff = _RAY_CUTOFF_MARGIN * intrinsics.max_depth / float(self._cos_axis.min())
+
+    def render(self, data: mujoco.MjData) -> np.ndarray:
+        position = np.array(data.cam_xpos[self._camera_id], dtype=np.float64)
+        rotation = data.cam_xmat[self._camera_id].reshape(3, 3)
+        vec = np.ascontiguousarray(self._rays_cam @ rotation.T).reshape(-1)
+        mujoco.mj_multiRay(
+            self._model,
+            data,
+            position,
+            vec,
+            self._geomgroup,
+            1,  # flg_static: the table and other world geoms are visible
+            -1,  # bodyexclude: none (the camera housing is behind the optical centre)
+            self._geomid,
+            self._dist,
+            None,
+            self._nray,
+            self._cutoff,
+        )
+        depth = np.where(self._dist >= 0.0, self._dist * self._cos_axis, 0.0)
+        return depth.astype(np.float32).reshape(self._shape)
+
+    def close(self) -> None:
+        pass
+
+
+# --- the camera ------------------------------------------------------------------------------
+
+
+class DepthCamera:
+    """A depth camera on a named MuJoCo camera, rendered with OpenGL or by ray casting.
+
+    Depth convention of :meth:`render`: a ``(height, width)`` float32 array of z-depth in
+    metres, i.e. the distance along the optical axis (not along the pixel's ray), row 0 at
+    the top of the image and column 0 at the left; 0.0 means no valid return (nothing hit, or
+    outside ``[intrinsics.min_depth, intrinsics.max_depth]``, or dropped by the noise model).
+    The MuJoCo camera looks along its own -z with +y up in the image and +x to the right.
+
+    The camera writes ``intrinsics.fovy_deg`` into ``model.cam_fovy`` (on construction and
+    before every render, so several DepthCameras may share one MuJoCo camera) and clears
+    ``cam_sensorsize`` (which would override fovy), so MuJoCo's projection is the pinhole of
+    ``intrinsics``; the GL backend may also enlarge ``model.vis.global_.offwidth/offheight``.
+    A GL renderer is bound to the thread that created it; release it with :meth:`close` or use
+    the camera as a context manager.
+
+    Parameters
+    ----------
+    model
+        The compiled model holding the camera.
+    camera_name
+        Name of the MuJoCo camera (default: the wrist depth camera).
+    intrinsics
+        Image size, field of view and valid range.
+    backend
+        ``"gl"``, ``"raycast"``, or ``"auto"`` (gl when an OpenGL context can be made, else
+        raycast with a warning). :attr:`backend` says which one is in use.
+    noise
+        Optional :class:`DepthNoise`; when it is enabled, :meth:`render` needs an ``rng``.
+    geom_groups
+        Geom groups the camera sees (both backends).
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        camera_name: str = WRIST_CAMERA,
+        intrinsics: CameraIntrinsics = DEFAULT_INTRINSICS,
+        backend: str = DEFAULT_BACKEND,
+        noise: DepthNoise | None = None,
+        geom_groups: Sequence[int] = DEPTH_GEOM_GROUPS,
+    ) -> None:
+        if backend not in BACKENDS:
+            raise ValueError(f"unknown depth backend {backend!r}; choose one of {list(BACKENDS)}")
+        if not isinstance(intrinsics, CameraIntrinsics):
+            raise TypeError(
+                f"intrinsics must be a CameraIntrinsics, got {type(intrinsics).__name__}"
+            )
+        if noise is not None and not isinstance(noise, DepthNoise):
+            raise TypeError(f"noise must be a DepthNoise or None, got {type(noise).__name__}")
+        groups = tuple(int(g) for g in geom_groups)
+        if any(not 0 <= g < mujoco.mjNGROUP for g in groups):
+            raise ValueError(f"geom_groups must lie in [0, {mujoco.mjNGROUP}), got {groups}")
+
+        camera_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera_name)
+        if camera_id < 0:
+            names = [model.camera(i).name for i in range(model.ncam)]
+            raise ValueError(f"no camera named {camera_name!r} in the model; cameras: {names}")
+        if model.cam_projection[camera_id] != mujoco.mjtProjection.mjPROJ_PERSPECTIVE:
+            raise ValueError(f"camera {camera_name!r} is not a perspective camera")
+
+        self.model = model
+        self.camera_name = camera_name
+        self.camera_id = int(camera_id)
+        self.intrinsics = intrinsics
+        self.noise = noise if noise is not None else DepthNoise()
+        self.geom_groups = groups
+
+        model.cam_fovy[camera_id] = intrinsics.fovy_deg
+        # A non-zero sensor size makes MuJoCo project with cam_intrinsic instead of fovy.
+        model.cam_sensorsize[camera_id] = 0.0
+
+        self._backend: _Backend | None = self._make_backend(backend)
+        self.backend: str = self._backend.name
+
+    def _make_backend(self, backend: str) -> _Backend:
+        args = (self.model, self.camera_id, self.intrinsics, self.geom_groups)
+        if backend == "gl":
+            return _GLBackend(*args)
+        if backend == "raycast":
+            return _RaycastBackend(*args)
+        try:
+            return _GLBackend(*args)
+        except Exception as exc:  # any failure to get a GL context means: no GL here
+            warnings.warn(
+                f"DepthCamera: OpenGL depth rendering unavailable ({type(exc).__name__}: "
+                f"{exc}); using the ray-cast backend",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            return _RaycastBackend(*args)
+
+    # -- rendering --
+
+    def render(self, data: mujoco.MjData, rng: np.random.Generator | None = None) -> np.ndarray:
+        """The ``(height, width)`` float32 z-depth image of ``data``'s state (see class doc).
+
+        Needs ``data``'s kinematics to be current (after :func:`mujoco.mj_forward`,
+        :func:`mujoco.mj_step`, or :func:`mujoco.mj_kinematics`); the camera pose is refreshed
+        from them here with :func:`mujoco.mj_camlight`. ``rng`` drives the noise model and is
+        required when :attr:`noise` is enabled.
+        """
+        backend = self._require_open()
+        if self.noise.enabled and rng is None:
+            raise ValueError(
+                "DepthCamera.render: the noise model is enabled, so an rng is required, e.g. "
+                "render(data, rng=numpy.random.default_rng(seed))"
+            )
+        # Another DepthCamera on the same MuJoCo camera may have set a different fovy.
+        self.model.cam_fovy[self.camera_id] = self.intrinsics.fovy_deg
+        mujoco.mj_camlight(self.model, data)
+        depth = backend.render(data)
+        crop_depth_range(depth, self.intrinsics.min_depth, self.intrinsics.max_depth)
+        if self.noise.enabled:
+            depth = self.noise.apply(depth, self.intrinsics, rng)
+        return depth
+
+    def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """Camera position ``(3,)`` and rotation ``(3, 3)`` (columns = camera axes) in the world.
+
+        Read from ``data.cam_xpos/cam_xmat``, which :func:`mujoco.mj_kinematics` alone does not
+        update; they are refreshed here with :func:`mujoco.mj_camlight`, so ``data`` needs
+        current kinematics (any of forward, step, or kinematics).
+        """
+        mujoco.mj_camlight(self.model, data)
+        position = np.array(data.cam_xpos[self.camera_id], dtype=np.float64)
+        rotation = np.array(data.cam_xmat[self.camera_id], dtype=np.float64).reshape(3, 3)
+        return position, rotation
+
+    def points_camera(self, depth: np.ndarray) -> np.ndarray:
+        """``(N, 3)`` float64 camera-frame points of the valid pixels of ``depth``."""
+        return depth_to_camera_points(depth, self.intrinsics)
+
+    def points_world(self, depth: np.ndarray, data: mujoco.MjData) -> np.ndarray:
+        """``(N, 3)`` float64 world-frame points of the valid pixels of ``depth`` (row-major).
+
+        ``data`` must be in the state ``depth`` was rendered from.
+        """
+        position, rotation = self.pose(data)
+        return transform_points(self.points_camera(depth), position, rotation)
+
+    # -- lifetime --
+
+    @property
+    def closed(self) -> bool:
+        return self._backend is None
+
+    def _require_open(self) -> _Backend:
+        if self._backend is None:
+            raise RuntimeError("DepthCamera has been closed")
+        return self._backend
+
+    def close(self) -> None:
+        """Release the renderer (if any). Safe to call more than once."""
+        if self._backend is not None:
+            self._backend.close()
+            self._backend = None
+
+    def __enter__(self) -> DepthCamera:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self.closed else self.backend
+        return (
+            f"DepthCamera(camera={self.camera_name!r}, backend={state!r}, "
+            f"{self.intrinsics.width}x{self.intrinsics.height}, "
+            f"fovy={self.intrinsics.fovy_deg} deg, noise={'on' if self.noise.enabled else 'off'})"
+        )

@@ -1,0 +1,613 @@
+"""The simulated depth camera: both backends, back-projection, intrinsics, noise, lifetime.
+
+Real MuJoCo scenes and real rendering (``MUJOCO_GL=egl`` from conftest.py), no mocks.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import warnings
+
+import mujoco
+import numpy as np
+import pytest
+
+from liuxing_envs.perception import (
+    camera_rays,
+    crop_points,
+    depth_to_camera_points,
+    transform_points,
+)
+from liuxing_envs.sim.camera import (
+    DEPTH_GEOM_GROUPS,
+    REALSENSE_D435_DEPTH,
+    CameraIntrinsics,
+    DepthCamera,
+    DepthNoise,
+)
+from liuxing_envs.sim.scene import (
+    HOME_QPOS,
+    WRIST_CAMERA,
+    WRIST_CAMERA_SITE,
+    load_scene_spec,
+    reset_to_home,
+)
+
+# The test box: 0.10 x 0.06 x 0.08 m, yawed 30 deg, resting on the table in front of the arm.
+BOX_HALF = np.array([0.05, 0.03, 0.04])
+BOX_POS = np.array([0.45, 0.10, 0.04])
+BOX_YAW = math.radians(30.0)
+CYLINDER_POS = np.array([0.33, 0.24, 0.03])  # radius 0.03, half-height 0.03
+SPHERE_POS = np.array([0.55, 0.27, 0.035])  # radius 0.035
+
+# Extra world-fixed cameras (eye, target) that look at the objects from the side.
+EXTRA_VIEWS = {
+    "side_view": ((0.80, -0.20, 0.30), (0.45, 0.12, 0.03)),
+    "low_view": ((0.15, 0.50, 0.18), (0.45, 0.15, 0.03)),
+    "far_view": ((1.20, 0.60, 0.50), (0.45, 0.15, 0.00)),
+}
+# Arm configurations that turn and tilt the wrist camera away from straight down.
+ARM_POSES = {
+    "home": HOME_QPOS,
+    "tilted": HOME_QPOS + np.array([0.15, 0.10, -0.10, 0.40, 0.10, 0.30]),
+    "turned": HOME_QPOS + np.array([-0.10, 0.0, 0.20, -0.45, -0.20, 0.0]),
+}
+
+AGREEMENT_TOL = 1e-3  # gl vs raycast, m
+SURFACE_TOL = 2e-3  # back-projected points vs the true surfaces, m
+
+
+def _box_rotation() -> np.ndarray:
+    c, s = math.cos(BOX_YAW), math.sin(BOX_YAW)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _look_at_quat(eye, target) -> np.ndarray:
+    eye = np.asarray(eye, dtype=float)
+    forward = np.asarray(target, dtype=float) - eye
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.column_stack([right, up, -forward]).ravel())
+    return quat
+
+
+def _build_model(with_round_objects: bool) -> mujoco.MjModel:
+    spec = load_scene_spec()
+    box = spec.worldbody.add_body(
+        name="box", pos=BOX_POS, quat=[math.cos(BOX_YAW / 2), 0.0, 0.0, math.sin(BOX_YAW / 2)]
+    )
+    box.add_geom(name="box", type=mujoco.mjtGeom.mjGEOM_BOX, size=BOX_HALF)
+    if with_round_objects:
+        cylinder = spec.worldbody.add_body(name="cylinder", pos=CYLINDER_POS)
+        cylinder.add_geom(
+            name="cylinder", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.03, 0.03, 0.0]
+        )
+        sphere = spec.worldbody.add_body(name="sphere", pos=SPHERE_POS)
+        sphere.add_geom(name="sphere", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.035, 0, 0])
+    for name, (eye, target) in EXTRA_VIEWS.items():
+        spec.worldbody.add_camera(name=name, pos=eye, quat=_look_at_quat(eye, target))
+    return spec.compile()
+
+
+class _CameraPool:
+    """One camera per (model, name, backend), closed at the end of the module."""
+
+    def __init__(self) -> None:
+        self._cameras: dict[tuple[int, str, str], DepthCamera] = {}
+
+    def get(self, model: mujoco.MjModel, name: str, backend: str) -> DepthCamera:
+        key = (id(model), name, backend)
+        if key not in self._cameras:
+            self._cameras[key] = DepthCamera(model, name, backend=backend)
+        return self._cameras[key]
+
+    def close(self) -> None:
+        for camera in self._cameras.values():
+            camera.close()
+
+
+@pytest.fixture(scope="module")
+def objects_model() -> mujoco.MjModel:
+    return _build_model(with_round_objects=True)
+
+
+@pytest.fixture(scope="module")
+def box_model() -> mujoco.MjModel:
+    return _build_model(with_round_objects=False)
+
+
+@pytest.fixture(scope="module")
+def pool():
+    cameras = _CameraPool()
+    yield cameras
+    cameras.close()
+
+
+def _data_at(model: mujoco.MjModel, qpos: np.ndarray = HOME_QPOS) -> mujoco.MjData:
+    data = mujoco.MjData(model)
+    reset_to_home(model, data)
+    data.qpos[: len(qpos)] = qpos
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def _geom_ids(camera: DepthCamera, data: mujoco.MjData) -> np.ndarray:
+    """Ground-truth geom hit by each pixel-centre ray (-1: none), from MuJoCo's ray caster."""
+    position, rotation = camera.pose(data)
+    rays = camera_rays(camera.intrinsics, "unit").reshape(-1, 3) @ rotation.T
+    n = rays.shape[0]
+    geom_ids = np.empty(n, dtype=np.int32)
+    dist = np.empty(n)
+    groups = np.zeros(6, dtype=np.uint8)
+    groups[list(DEPTH_GEOM_GROUPS)] = 1
+    mujoco.mj_multiRay(
+        camera.model, data, position, rays.ravel(), groups, 1, -1, geom_ids, dist, None, n, 100.0
+    )
+    return geom_ids.reshape(camera.intrinsics.height, camera.intrinsics.width)
+
+
+def _near_boundary(labels: np.ndarray) -> np.ndarray:
+    """Pixels within 1 px (8-neighbourhood) of a pixel with a different label."""
+    padded = np.pad(labels, 1, mode="edge")
+    h, w = labels.shape
+    out = np.zeros(labels.shape, dtype=bool)
+    for di in (0, 1, 2):
+        for dj in (0, 1, 2):
+            out |= padded[di : di + h, dj : dj + w] != labels
+    return out
+
+
+def _box_local(points: np.ndarray) -> np.ndarray:
+    return (points - BOX_POS) @ _box_rotation()
+
+
+def _box_surface_distance(points: np.ndarray) -> np.ndarray:
+    """Unsigned distance of world points to the surface of the test box."""
+    excess = np.abs(_box_local(points)) - BOX_HALF
+    outside = np.linalg.norm(np.maximum(excess, 0.0), axis=1)
+    inside = np.minimum(excess.max(axis=1), 0.0)
+    return np.abs(outside + inside)
+
+
+# --- gl vs raycast ---------------------------------------------------------------------------
+
+AGREEMENT_CASES = [(WRIST_CAMERA, pose) for pose in ARM_POSES] + [
+    (name, "home") for name in EXTRA_VIEWS
+]
+
+
+@pytest.mark.parametrize(("camera_name", "arm_pose"), AGREEMENT_CASES)
+def test_gl_and_raycast_agree_away_from_silhouettes(objects_model, pool, camera_name, arm_pose):
+    data = _data_at(objects_model, ARM_POSES[arm_pose])
+    gl = pool.get(objects_model, camera_name, "gl")
+    ray = pool.get(objects_model, camera_name, "raycast")
+    depth_gl = gl.render(data)
+    depth_ray = ray.render(data)
+    assert depth_gl.dtype == np.float32 and depth_gl.shape == (64, 64)
+    assert depth_ray.dtype == np.float32 and depth_ray.shape == (64, 64)
+
+    geom_ids = _geom_ids(ray, data)
+    box_id = objects_model.geom("box").id
+    assert (geom_ids == box_id).sum() > 20, "the view should see the box"
+    interior = ~_near_boundary(geom_ids)
+    assert interior.sum() > 1500
+
+    valid_gl, valid_ray = depth_gl > 0, depth_ray > 0
+    np.testing.assert_array_equal(valid_gl[interior], valid_ray[interior])
+    both = interior & valid_gl & valid_ray
+    diff = np.abs(depth_gl - depth_ray)[both]
+    assert diff.max() < AGREEMENT_TOL, f"max |gl - raycast| = {diff.max() * 1e3:.3f} mm"
+
+
+# --- back-projection -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("backend", ["gl", "raycast"])
+@pytest.mark.parametrize("camera_name", [WRIST_CAMERA, "side_view"])
+def test_back_projected_points_lie_on_the_box_and_table(box_model, pool, backend, camera_name):
+    data = _data_at(box_model)
+    camera = pool.get(box_model, camera_name, backend)
+    depth = camera.render(data)
+    points = camera.points_world(depth, data)
+    valid = depth > 0
+    assert points.shape == (valid.sum(), 3) and points.dtype == np.float64
+
+    geom_ids = _geom_ids(pool.get(box_model, camera_name, "raycast"), data)
+    labels = geom_ids[valid]
+    interior = ~_near_boundary(geom_ids)[valid]
+    on_box = interior & (labels == box_model.geom("box").id)
+    on_table = interior & (labels == box_model.geom("table_top").id)
+    assert on_box.sum() > 50 and on_table.sum() > 500
+
+    box_dist = _box_surface_distance(points[on_box])
+    assert box_dist.max() < SURFACE_TOL, f"box points off by {box_dist.max() * 1e3:.2f} mm"
+    table_z = np.abs(points[on_table, 2])
+    assert table_z.max() < SURFACE_TOL, f"table points off by {table_z.max() * 1e3:.2f} mm"
+    # Box points cover the top face, not just its rim.
+    top = np.abs(_box_local(points[on_box])[:, 2] - BOX_HALF[2]) < SURFACE_TOL
+    assert top.sum() > 10
+
+    # Every point around the box, silhouettes included, is on the box or the table.
+    near, _ = crop_points(points, [0.25, -0.10, -0.05], [0.65, 0.30, 0.20], return_mask=True)
+    off = np.minimum(_box_surface_distance(near), np.abs(near[:, 2]))
+    assert off.max() < SURFACE_TOL
+
+
+# --- intrinsics ------------------------------------------------------------------------------
+
+
+def test_intrinsics_defaults_and_matrix():
+    intr = CameraIntrinsics()
+    assert (intr.width, intr.height, intr.fovy_deg) == (64, 64, 58.0)
+    assert (intr.min_depth, intr.max_depth) == (0.105, 3.0)
+    fy = 32.0 / math.tan(math.radians(29.0))
+    np.testing.assert_allclose(intr.matrix, [[fy, 0, 32.0], [0, fy, 32.0], [0, 0, 1]])
+    assert intr.fovx_deg == pytest.approx(58.0)
+
+    d435 = REALSENSE_D435_DEPTH
+    assert (d435.width, d435.height) == (848, 480)
+    assert d435.fx == d435.fy == pytest.approx(240.0 / math.tan(math.radians(29.0)))
+    assert (d435.cx, d435.cy) == (424.0, 240.0)
+    assert 88.0 < d435.fovx_deg < 90.0
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("width", 0),
+        ("width", 64.0),
+        ("height", -3),
+        ("fovy_deg", 0.0),
+        ("fovy_deg", 180.0),
+        ("min_depth", 0.0),
+        ("max_depth", 0.1),
+        ("max_depth", math.inf),
+    ],
+)
+def test_intrinsics_validation_names_the_field(field, value):
+    with pytest.raises(ValueError, match=rf"CameraIntrinsics\.{field} must"):
+        CameraIntrinsics(**{field: value})
+
+
+def _project(intr: CameraIntrinsics, position, rotation, point) -> tuple[np.ndarray, float]:
+    """Pixel coordinates (u, v) and z-depth of a world point through K (OpenCV axes)."""
+    p = rotation.T @ (np.asarray(point) - position)
+    p_cv = np.array([p[0], -p[1], -p[2]])  # MuJoCo camera (y up, -z forward) -> OpenCV
+    uvw = intr.matrix @ p_cv
+    return uvw[:2] / uvw[2], p_cv[2]
+
+
+@pytest.mark.parametrize(
+    ("camera_name", "arm_pose"),
+    [(WRIST_CAMERA, "home"), (WRIST_CAMERA, "tilted"), ("side_view", "home")],
+)
+def test_matrix_matches_mujoco_projection(objects_model, pool, camera_name, arm_pose):
+    data = _data_at(objects_model, ARM_POSES[arm_pose])
+    camera = pool.get(objects_model, camera_name, "gl")  # MuJoCo's own projection
+    depth = camera.render(data)
+    position, rotation = camera.pose(data)
+    intr = camera.intrinsics
+    rays = camera_rays(intr, "z")
+    tops = {"box": (BOX_POS, BOX_HALF[2]), "cylinder": (CYLINDER_POS, 0.03)}
+    checked = []
+    for name, (centre, half_height) in tops.items():
+        top_centre = centre + np.array([0.0, 0.0, half_height])
+        (u, v), z = _project(intr, position, rotation, top_centre)
+        row, col = math.floor(v), math.floor(u)  # pixel centres at integer + 0.5
+        if not (1 <= row < intr.height - 1 and 1 <= col < intr.width - 1):
+            continue
+        checked.append(name)
+        # z-depth where that pixel's centre ray meets the top face's plane.
+        ray_world = rotation @ rays[row, col]
+        expected = (top_centre[2] - position[2]) / ray_world[2]
+        hit = position + expected * ray_world
+        assert np.linalg.norm(hit - top_centre) < 0.02, "pixel centre should stay on the face"
+        assert abs(expected - z) < 0.02
+        assert depth[row, col] == pytest.approx(expected, abs=5e-4), name
+    assert checked, "no top face is in view"
+    if arm_pose == "home":
+        assert checked == ["box", "cylinder"]
+
+
+def test_pose_follows_the_kinematics_and_matches_the_optical_site(objects_model, pool):
+    camera = pool.get(objects_model, WRIST_CAMERA, "raycast")
+    data = _data_at(objects_model)
+    data.qpos[:6] = ARM_POSES["tilted"]
+    mujoco.mj_kinematics(objects_model, data)  # no mj_camlight: pose() must refresh it
+    position, rotation = camera.pose(data)
+    site = objects_model.site(WRIST_CAMERA_SITE).id
+    np.testing.assert_allclose(position, data.site_xpos[site], atol=1e-9)
+    np.testing.assert_allclose(rotation, data.site_xmat[site].reshape(3, 3), atol=1e-9)
+    np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-9)
+
+
+# --- range and noise -------------------------------------------------------------------------
+
+
+def test_noise_is_off_by_default(box_model, pool):
+    data = _data_at(box_model)
+    camera = pool.get(box_model, WRIST_CAMERA, "gl")
+    assert not camera.noise.enabled and not DepthNoise().enabled
+    first = camera.render(data)
+    np.testing.assert_array_equal(first, camera.render(data, rng=np.random.default_rng(0)))
+    with DepthCamera(box_model, backend="gl", noise=DepthNoise()) as explicit_off:
+        np.testing.assert_array_equal(first, explicit_off.render(data))
+    intr = camera.intrinsics
+    np.testing.assert_array_equal(DepthNoise().apply(first, intr, np.random.default_rng(1)), first)
+
+
+def test_noise_is_seeded(box_model):
+    data = _data_at(box_model)
+    with DepthCamera(box_model, backend="raycast", noise=DepthNoise.realsense_like()) as camera:
+        a = camera.render(data, rng=np.random.default_rng(7))
+        b = camera.render(data, rng=np.random.default_rng(7))
+        c = camera.render(data, rng=np.random.default_rng(8))
+    np.testing.assert_array_equal(a, b)
+    assert np.any(a != c)
+    assert a.dtype == np.float32
+
+
+def test_render_without_rng_raises_when_noise_is_on(box_model):
+    data = _data_at(box_model)
+    with DepthCamera(box_model, backend="raycast", noise=DepthNoise(dropout_prob=0.1)) as cam:
+        with pytest.raises(ValueError, match="rng"):
+            cam.render(data)
+
+
+def test_gaussian_noise_matches_its_sigma_on_a_flat_patch(box_model, pool):
+    data = _data_at(box_model)
+    clean = pool.get(box_model, WRIST_CAMERA, "raycast").render(data)
+    noise = DepthNoise(sigma_base=0.001, sigma_quadratic=0.004)
+    rng = np.random.default_rng(3)
+    table = clean > 0.45  # the box top is at ~0.41 m, the table at ~0.49 m
+    residuals = []
+    for _ in range(4):
+        noisy = noise.apply(clean, CameraIntrinsics(), rng)
+        residuals.append((noisy - clean)[table] / noise.sigma(clean[table]))
+    standardized = np.concatenate(residuals)
+    assert standardized.std() == pytest.approx(1.0, rel=0.2)
+    assert abs(standardized.mean()) < 4.0 / math.sqrt(standardized.size)
+    sigma_at_table = noise.sigma(0.4875)
+    assert sigma_at_table == pytest.approx(0.001 + 0.004 * 0.4875**2)
+    assert DepthNoise.realsense_like().sigma(1.0) == pytest.approx(0.0036, rel=0.05)
+
+
+def test_quantization_and_random_dropout(box_model, pool):
+    data = _data_at(box_model)
+    clean = pool.get(box_model, WRIST_CAMERA, "raycast").render(data)
+    assert np.all(clean > 0)
+    intr = CameraIntrinsics()
+    step = 0.005
+    quantized = DepthNoise(quantization=step).apply(clean, intr, np.random.default_rng(0))
+    np.testing.assert_allclose(quantized / step, np.round(quantized / step), atol=1e-4)
+    assert np.abs(quantized - clean).max() <= step / 2 + 1e-6
+
+    dropped = DepthNoise(dropout_prob=0.25).apply(clean, intr, np.random.default_rng(0))
+    assert np.mean(dropped == 0) == pytest.approx(0.25, abs=0.03)
+    kept = dropped > 0
+    np.testing.assert_array_equal(dropped[kept], clean[kept])
+
+
+@pytest.mark.parametrize("backend", ["gl", "raycast"])
+def test_out_of_range_pixels_read_zero(box_model, backend):
+    data = _data_at(box_model)  # box top ~0.41 m below the camera, table ~0.49 m
+    near_only = CameraIntrinsics(max_depth=0.45)
+    far_only = CameraIntrinsics(min_depth=0.45)
+    with DepthCamera(box_model, intrinsics=near_only, backend=backend) as camera:
+        near = camera.render(data)
+    with DepthCamera(box_model, intrinsics=far_only, backend=backend) as camera:
+        far = camera.render(data)
+    assert np.all((near == 0) | ((near > 0.39) & (near <= 0.45)))
+    assert np.all((far == 0) | (far >= 0.45))
+    assert 50 < np.count_nonzero(near) < 1000
+    np.testing.assert_array_equal(near > 0, far == 0)
+
+
+def test_noise_pushing_depth_out_of_range_reads_zero():
+    intr = CameraIntrinsics(min_depth=0.2, max_depth=1.0)
+    depth = np.full((intr.height, intr.width), 0.999, dtype=np.float32)
+    depth[:, :32] = 0.201
+    noisy = DepthNoise(sigma_base=0.05).apply(depth, intr, np.random.default_rng(0))
+    assert np.all((noisy == 0) | ((noisy >= intr.min_depth) & (noisy <= intr.max_depth)))
+    assert 0.3 < np.mean(noisy == 0) < 0.7  # about half falls outside on both sides
+    assert np.all(np.isfinite(noisy))
+
+
+def _surface_labels_and_normals(points, geom_ids, box_id, table_id):
+    """Per point: a label for the flat surface it lies on (-1: neither box nor table; 0: the
+    table; 1..6: a box face) and that surface's true normal."""
+    labels = np.full(len(points), -1)
+    normals = np.zeros_like(points)
+    on_table = geom_ids == table_id
+    labels[on_table] = 0
+    normals[on_table] = (0.0, 0.0, 1.0)
+    on_box = geom_ids == box_id
+    local = _box_local(points[on_box])
+    axis = np.argmax(np.abs(local) / BOX_HALF, axis=1)
+    sign = np.sign(local[np.arange(len(local)), axis])
+    labels[on_box] = 1 + 2 * axis + (sign > 0)
+    local_normals = np.zeros_like(local)
+    local_normals[np.arange(len(local)), axis] = sign
+    normals[on_box] = local_normals @ _box_rotation().T
+    return labels, normals
+
+
+@pytest.mark.parametrize(("camera_name", "threshold"), [("side_view", 50.0), (WRIST_CAMERA, 45.0)])
+def test_grazing_dropout_removes_steep_surfaces_only(box_model, pool, camera_name, threshold):
+    data = _data_at(box_model)
+    camera = pool.get(box_model, camera_name, "raycast")
+    clean = camera.render(data)
+    valid = clean > 0
+    points = camera.points_world(clean, data)
+    eye, _ = camera.pose(data)
+    box_id, table_id = box_model.geom("box").id, box_model.geom("table_top").id
+    labels, normals = _surface_labels_and_normals(
+        points, _geom_ids(camera, data)[valid], box_id, table_id
+    )
+    view = (points - eye) / np.linalg.norm(points - eye, axis=1, keepdims=True)
+    angle = np.degrees(np.arccos(np.clip(np.abs(np.sum(normals * view, axis=1)), 0.0, 1.0)))
+
+    # Finite-difference normals mix surfaces within a pixel of a face or object boundary.
+    label_image = np.full(clean.shape, -2)
+    label_image[valid] = labels
+    known = (labels >= 0) & ~_near_boundary(label_image)[valid]
+
+    noise = DepthNoise(grazing_dropout_deg=threshold)
+    kept = noise.apply(clean, camera.intrinsics, np.random.default_rng(0))[valid] > 0
+    steep = known & (angle > threshold + 5.0)
+    gentle = known & (angle < threshold - 5.0)
+    assert np.all(~kept[steep]), f"{np.sum(kept[steep])} steep pixels survived"
+    assert np.all(kept[gentle]), f"{np.sum(~kept[gentle])} gentle pixels dropped"
+    if camera_name == WRIST_CAMERA:
+        # Looking straight down, the table is seen head-on everywhere and is all kept.
+        assert np.all(kept[known & (labels == 0)])
+        assert gentle.sum() > 2500
+    else:
+        assert steep.sum() > 100 and gentle.sum() > 20
+
+
+def test_noise_validation_names_the_field():
+    for field, value in [
+        ("sigma_base", -0.1),
+        ("sigma_quadratic", math.nan),
+        ("quantization", -1e-3),
+        ("grazing_dropout_deg", 90.0),
+        ("dropout_prob", 1.5),
+    ]:
+        with pytest.raises(ValueError, match=rf"DepthNoise\.{field} must"):
+            DepthNoise(**{field: value})
+    assert DepthNoise.realsense_like().enabled
+
+
+# --- backends and lifetime -------------------------------------------------------------------
+
+
+def test_auto_backend_picks_gl_here(box_model):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        camera = DepthCamera(box_model)
+    assert camera.backend == "gl"
+    camera.close()
+
+
+def test_close_is_idempotent_and_final(box_model):
+    data = _data_at(box_model)
+    for backend in ("gl", "raycast"):
+        camera = DepthCamera(box_model, backend=backend)
+        camera.render(data)
+        camera.close()
+        camera.close()
+        assert camera.closed
+        with pytest.raises(RuntimeError, match="closed"):
+            camera.render(data)
+    with DepthCamera(box_model, backend="gl") as camera:
+        camera.render(data)
+    assert camera.closed
+
+
+def test_unknown_backend_and_camera_are_clear_errors(box_model):
+    with pytest.raises(ValueError, match=r"'vulkan'.*'auto', 'gl', 'raycast'"):
+        DepthCamera(box_model, backend="vulkan")
+    with pytest.raises(ValueError, match=r"'nope'") as excinfo:
+        DepthCamera(box_model, camera_name="nope", backend="raycast")
+    assert "'wrist_depth'" in str(excinfo.value) and "'overview'" in str(excinfo.value)
+
+
+def test_other_intrinsics_agree_and_share_the_camera(box_model, pool):
+    data = _data_at(box_model)
+    intr = CameraIntrinsics(width=96, height=48, fovy_deg=45.0)
+    with DepthCamera(box_model, intrinsics=intr, backend="gl") as gl:
+        depth_gl = gl.render(data)
+    with DepthCamera(box_model, intrinsics=intr, backend="raycast") as ray:
+        depth_ray = ray.render(data)
+        interior = ~_near_boundary(_geom_ids(ray, data))
+    assert depth_gl.shape == (48, 96)
+    assert np.abs(depth_gl - depth_ray)[interior].max() < AGREEMENT_TOL
+
+    # The 45-degree cameras rewrote the MuJoCo camera's fovy; the 58-degree ones still agree.
+    assert box_model.cam_fovy[box_model.camera(WRIST_CAMERA).id] == 45.0
+    depth_58 = pool.get(box_model, WRIST_CAMERA, "gl").render(data)
+    depth_58_ray = pool.get(box_model, WRIST_CAMERA, "raycast").render(data)
+    interior = ~_near_boundary(_geom_ids(pool.get(box_model, WRIST_CAMERA, "raycast"), data))
+    assert np.abs(depth_58 - depth_58_ray)[interior].max() < AGREEMENT_TOL
+
+
+def test_gl_enlarges_a_small_offscreen_framebuffer():
+    model = _build_model(with_round_objects=False)
+    model.vis.global_.offwidth, model.vis.global_.offheight = 32, 32
+    offsamples = int(model.vis.quality.offsamples)
+    with DepthCamera(model, backend="gl") as camera:
+        assert camera.render(_data_at(model)).shape == (64, 64)
+    assert (model.vis.global_.offwidth, model.vis.global_.offheight) == (64, 64)
+    assert model.vis.quality.offsamples == offsamples  # only borrowed while creating
+
+
+_FALLBACK_SCRIPT = """
+import json, warnings
+from liuxing_envs.sim.scene import load_scene_model
+from liuxing_envs.sim.camera import DepthCamera
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    camera = DepthCamera(load_scene_model())
+ours = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)
+        and str(w.message).startswith("DepthCamera")]
+print(json.dumps({"backend": camera.backend, "warnings": ours}))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="forces a failing X11 GLFW")
+def test_auto_backend_falls_back_to_raycast_without_gl():
+    # A fresh interpreter whose GL platform (GLFW on an X display that does not exist) cannot
+    # make a context: the backend is picked when mujoco is imported, so it cannot be in-process.
+    env = {**os.environ, "MUJOCO_GL": "glfw", "DISPLAY": ":31999"}
+    env.pop("WAYLAND_DISPLAY", None)
+    result = subprocess.run(
+        [sys.executable, "-c", _FALLBACK_SCRIPT],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["backend"] == "raycast"
+    assert len(report["warnings"]) == 1 and "ray-cast" in report["warnings"][0]
+
+
+# --- point-cloud helpers ---------------------------------------------------------------------
+
+
+def test_pointcloud_helpers():
+    intr = CameraIntrinsics(width=4, height=3, fovy_deg=60.0)
+    unit = camera_rays(intr, "unit")
+    assert unit.shape == (3, 4, 3) and not unit.flags.writeable
+    np.testing.assert_allclose(np.linalg.norm(unit, axis=-1), 1.0)
+    z_rays = camera_rays(intr, "z")
+    assert np.all(z_rays[..., 2] == -1.0)
+    assert z_rays[0, 0, 0] < 0 < z_rays[0, 0, 1]  # top-left pixel: left and up
+
+    depth = np.full((3, 4), 2.0)
+    depth[1, 2] = 0.0
+    points, mask = depth_to_camera_points(depth, intr, return_mask=True)
+    assert points.shape == (11, 3) and mask.sum() == 11 and not mask[1, 2]
+    np.testing.assert_allclose(points[:, 2], -2.0)
+    with pytest.raises(ValueError, match="expected"):
+        depth_to_camera_points(np.ones((4, 3)), intr)
+
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    moved = transform_points(np.array([[1.0, 0.0, 0.0]]), [0.0, 0.0, 1.0], rotation)
+    np.testing.assert_allclose(moved, [[0.0, 1.0, 1.0]])
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        transform_points(np.zeros(3), np.zeros(3), np.eye(3))
+
+    kept = crop_points(np.array([[0.0, 0, 0], [1.0, 1, 1], [2.0, 0, 0]]), [0, 0, 0], [1, 1, 1])
+    np.testing.assert_array_equal(kept, [[0.0, 0, 0], [1.0, 1, 1]])
+    with pytest.raises(ValueError, match="lower > upper"):
+        crop_points(np.zeros((1, 3)), [1, 0, 0], [0, 1, 1])
