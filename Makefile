@@ -13,10 +13,15 @@ export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
+# torch first, pinned to a CPU build, so the train extra's "torch>=2.3" pulls no CUDA packages.
+# On a CUDA machine: make TORCH_SPEC="torch --index-url https://download.pytorch.org/whl/cu126"
+TORCH_SPEC ?= torch==2.13.0
+
 # Reinstalled whenever pyproject.toml changes.
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet $(TORCH_SPEC)
+	$(BIN)/python -m pip install --quiet -e ".[dev,train]"
 	touch $@
 
 install: $(VENV)/.installed

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from liuxing_envs.sim.arm import Arm
+from liuxing_envs.sim.arm import Arm, JointPath
 from liuxing_envs.sim.scene import HOME_QPOS, WRIST_CAMERA_SITE, load_scene_model, reset_to_home
 from liuxing_envs.sim.viewpoints import look_at, sphere_viewpoint, view_grid
 
@@ -201,3 +201,27 @@ def test_move_rejects_bad_input(sim, qpos, mode, message):
     _, _, arm = sim
     with pytest.raises(ValueError, match=message):
         arm.move_to(qpos, mode)
+
+
+def test_planned_paths_are_followed_in_both_modes(sim):
+    _, _, arm = sim
+    eye, rotation = sphere_viewpoint(TABLE_POINT, np.deg2rad(150), np.deg2rad(40), 0.4)
+    goal = arm.solve_ik(eye, rotation).qpos
+    path = arm.plan_path(goal)
+    assert path is not None and len(path.waypoints) == 1
+    result = arm.follow(path, "kinematic")
+    assert result.reached and result.path_length == pytest.approx(path.length)
+    np.testing.assert_allclose(arm.qpos, goal)
+
+    back = JointPath(arm.qpos, (HOME_QPOS + 0.2, HOME_QPOS))  # two segments, under physics
+    result = arm.follow(back, "dynamic")
+    assert result.reached and result.path_length >= 0.99 * back.length
+    assert np.max(np.abs(arm.qpos - HOME_QPOS)) <= 1e-3
+
+
+def test_no_plan_into_the_table_and_paths_must_start_where_the_arm_is(sim):
+    _, _, arm = sim
+    assert arm.plan_path(wrist_into_table(arm)) is None
+    stale = JointPath(HOME_QPOS + 0.1, (HOME_QPOS,))
+    with pytest.raises(ValueError, match="does not start at the arm's current configuration"):
+        arm.follow(stale)

@@ -121,10 +121,14 @@ def depth_to_camera_points(
     return points
 
 
-def _check_points(points: np.ndarray) -> np.ndarray:
+def as_points(points, name: str = "points", *, finite: bool = False) -> np.ndarray:
+    """``points`` as an ``(N, 3)`` float64 array; a ValueError naming ``name`` otherwise
+    (also for non-finite values when ``finite``)."""
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points must have shape (N, 3), got {points.shape}")
+        raise ValueError(f"{name} must have shape (N, 3), got {points.shape}")
+    if finite and not np.all(np.isfinite(points)):
+        raise ValueError(f"{name} must be finite (drop invalid depth pixels first)")
     return points
 
 
@@ -142,7 +146,7 @@ def transform_points(points: np.ndarray, position: np.ndarray, rotation: np.ndar
     world frame. ``rotation`` is 3x3 (columns = the frame's axes in the parent) or a flat
     9-vector in row-major order, as MuJoCo stores ``xmat``.
     """
-    points = _check_points(points)
+    points = as_points(points)
     position = _check_vector("position", position)
     rotation = np.asarray(rotation, dtype=np.float64)
     if rotation.shape == (9,):
@@ -160,7 +164,7 @@ def crop_points(
     Returns the ``(M, 3)`` float64 kept points, and with ``return_mask=True`` also the ``(N,)``
     boolean mask over the input rows.
     """
-    points = _check_points(points)
+    points = as_points(points)
     lower = _check_vector("lower", lower)
     upper = _check_vector("upper", upper)
     if np.any(lower > upper):

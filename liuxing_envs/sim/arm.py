@@ -103,6 +103,21 @@ class PathCheck:
 
 
 @dataclass(frozen=True)
+class JointPath:
+    """A collision-checked joint-space path from ``start`` through ``waypoints`` (the last one
+    is the goal), made of straight segments; returned by :meth:`Arm.plan_path`."""
+
+    start: np.ndarray
+    waypoints: tuple[np.ndarray, ...]
+
+    @property
+    def length(self) -> float:
+        """Joint-space length (rad): sum of the segments' Euclidean norms."""
+        points = (self.start, *self.waypoints)
+        return float(sum(np.linalg.norm(b - a) for a, b in zip(points, points[1:], strict=False)))
+
+
+@dataclass(frozen=True)
 class MotionResult:
     """Outcome of :meth:`Arm.move_to`.
 
@@ -218,6 +233,21 @@ class Arm:
                 return PathCheck(False, last_free, fraction, contacts)
             last_free = q
         return PathCheck(True, last_free, 1.0, ())
+
+    def plan_path(
+        self, goal: np.ndarray, *, via: np.ndarray | None = HOME_QPOS
+    ) -> JointPath | None:
+        """A collision-free path from the current configuration to ``goal``: the straight
+        joint-space segment if it is free, else two straight segments through ``via``
+        (default: home, a retract pose clear of the table), else None."""
+        start, goal = self.qpos, self._checked_qpos(goal)
+        if self.check_path(start, goal).free:
+            return JointPath(start, (goal,))
+        if via is not None:
+            via = self._checked_qpos(via)
+            if self.check_path(start, via).free and self.check_path(via, goal).free:
+                return JointPath(start, (via, goal))
+        return None
 
     # ------------------------------------------------------------------- IK
     def solve_ik(
@@ -361,20 +391,45 @@ class Arm:
         timeout: float = DYNAMIC_TIMEOUT,
         settle_tolerance: float = DYNAMIC_SETTLE_TOLERANCE,
     ) -> MotionResult:
-        """Move the live arm to joint configuration ``qpos`` (see the module docstring)."""
-        target = np.asarray(qpos, dtype=float)
-        if target.shape != (6,) or not np.all(np.isfinite(target)):
-            raise ValueError(f"qpos must be 6 finite joint angles, got {qpos!r}")
-        if not self.within_limits(target):
-            raise ValueError(
-                f"qpos {np.round(target, 4).tolist()} is outside the joint limits "
-                f"[{self.lower.round(4).tolist()}, {self.upper.round(4).tolist()}]"
-            )
+        """Move the live arm to joint configuration ``qpos`` along the straight joint path
+        (see the module docstring)."""
+        target = self._checked_qpos(qpos)
+        self._check_mode(mode)
         if mode == "kinematic":
             return self._move_kinematic(target)
-        if mode == "dynamic":
-            return self._move_dynamic(target, max_joint_speed, timeout, settle_tolerance)
-        raise ValueError(f"unknown motion mode {mode!r}; allowed: {MOTION_MODES}")
+        return self._move_dynamic(target, max_joint_speed, timeout, settle_tolerance)
+
+    def follow(
+        self,
+        path: JointPath,
+        mode: str = "kinematic",
+        *,
+        max_joint_speed: float = DYNAMIC_MAX_JOINT_SPEED,
+        timeout: float = DYNAMIC_TIMEOUT,
+        settle_tolerance: float = DYNAMIC_SETTLE_TOLERANCE,
+    ) -> MotionResult:
+        """Execute a path from :meth:`plan_path`, which must start at the current configuration.
+
+        Kinematic motion trusts the plan's collision checks and jumps to the goal; dynamic
+        motion drives the servos through every waypoint under physics (``timeout`` applies
+        to each segment) and stops at the first contact or missed waypoint.
+        """
+        self._check_mode(mode)
+        if not np.allclose(path.start, self.qpos, atol=1e-9):
+            raise ValueError("the path does not start at the arm's current configuration")
+        if mode == "kinematic":
+            self.set_qpos(path.waypoints[-1])
+            return MotionResult(True, path.waypoints[-1].copy(), path.length, False, (), 0.0, mode)
+        travelled, sim_time = 0.0, 0.0
+        for waypoint in path.waypoints:
+            result = self._move_dynamic(waypoint, max_joint_speed, timeout, settle_tolerance)
+            travelled += result.path_length
+            sim_time += result.sim_time
+            if not result.reached:
+                break
+        return MotionResult(
+            result.reached, result.qpos, travelled, result.collided, result.contacts, sim_time, mode
+        )
 
     def _move_kinematic(self, target: np.ndarray) -> MotionResult:
         start = self.qpos
@@ -421,6 +476,22 @@ class Arm:
             if settled:
                 return MotionResult(True, q, path_length, False, (), t, "dynamic")
         return MotionResult(False, self.qpos, path_length, False, (), t, "dynamic")
+
+    def _checked_qpos(self, qpos) -> np.ndarray:
+        target = np.asarray(qpos, dtype=float)
+        if target.shape != (6,) or not np.all(np.isfinite(target)):
+            raise ValueError(f"qpos must be 6 finite joint angles, got {qpos!r}")
+        if not self.within_limits(target):
+            raise ValueError(
+                f"qpos {np.round(target, 4).tolist()} is outside the joint limits "
+                f"[{self.lower.round(4).tolist()}, {self.upper.round(4).tolist()}]"
+            )
+        return target
+
+    @staticmethod
+    def _check_mode(mode: str) -> None:
+        if mode not in MOTION_MODES:
+            raise ValueError(f"unknown motion mode {mode!r}; allowed: {MOTION_MODES}")
 
     def set_qpos(self, qpos: np.ndarray) -> None:
         """Teleport the live arm to ``qpos`` at rest, hold it there, and update kinematics."""

@@ -573,8 +573,23 @@ class DepthCamera:
         # A non-zero sensor size makes MuJoCo project with cam_intrinsic instead of fovy.
         model.cam_sensorsize[camera_id] = 0.0
 
+        self._requested_backend = backend
         self._backend: _Backend | None = self._make_backend(backend)
         self.backend: str = self._backend.name
+
+    def __getstate__(self) -> dict:
+        # A GL context cannot be pickled; the copy makes its own renderer when unpickled.
+        state = self.__dict__.copy()
+        state["_backend"] = None
+        state["_was_open"] = self._backend is not None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        was_open = state.pop("_was_open")
+        self.__dict__.update(state)
+        if was_open:
+            self._backend = self._make_backend(self._requested_backend)
+            self.backend = self._backend.name
 
     def _make_backend(self, backend: str) -> _Backend:
         args = (self.model, self.camera_id, self.intrinsics, self.geom_groups)

@@ -1,0 +1,126 @@
+"""Scripted view-planning baselines for ViewPlanning-v0.
+
+All expose SB3's ``predict(observation, state=None, episode_start=None, deterministic=True)
+-> (action, state)`` for one (unbatched) observation, so evaluation code treats them like
+trained policies. They are built on the environment they will act in, because the mapping
+from a view to an action (continuous or discrete) belongs to that environment.
+
+- :class:`FourViewpointBaseline`: the seed pipeline's fixed pattern, relative to the object's
+  estimated centre: top-down, right side, left side, front ("right" and "left" as seen from
+  the arm, which looks along +x: right is -y, azimuth -90 deg; "front" is the side facing the
+  arm, azimuth 180 deg). Side views at ``FOUR_VIEW_ELEVATION_DEG``, all at
+  ``FOUR_VIEW_RADIUS``. The reference every learned agent is compared against.
+- :class:`UniformViews`: the budget spread evenly around the object: azimuths 360/N apart at
+  ``UNIFORM_ELEVATION_DEG``.
+- :class:`RandomViews`: uniform samples of the action space (seeded).
+- :class:`GreedyOracle`: PRIVILEGED (uses ground truth): at each step it previews every
+  candidate view of the environment's discrete set against the ground-truth coverage and
+  takes the one with the best reward. An upper bound, not a fair competitor.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+FOUR_VIEW_ELEVATION_DEG = 30.0
+FOUR_VIEW_RADIUS = 0.38
+FOUR_VIEWS_DEG = (  # (name, azimuth, elevation)
+    ("top", 0.0, 90.0),
+    ("right", -90.0, FOUR_VIEW_ELEVATION_DEG),
+    ("left", 90.0, FOUR_VIEW_ELEVATION_DEG),
+    ("front", 180.0, FOUR_VIEW_ELEVATION_DEG),
+)
+UNIFORM_ELEVATION_DEG = 40.0
+UNIFORM_RADIUS = 0.38
+
+
+def views_used(observation: dict) -> int:
+    """How many views of the budget the observation says are used."""
+    history = np.reshape(observation["view_history"], (-1, 5))
+    return int(np.count_nonzero(history[:, -1]))
+
+
+class _ViewSequencePolicy:
+    """Plays a fixed sequence of (azimuth, elevation, radius) views, cycling if needed."""
+
+    def __init__(self, env, views_rad) -> None:
+        self.env = env.unwrapped
+        self.views = tuple(views_rad)
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        view = self.views[views_used(observation) % len(self.views)]
+        return action_for_view(self.env, *view), state
+
+
+class FourViewpointBaseline(_ViewSequencePolicy):
+    def __init__(self, env, radius: float = FOUR_VIEW_RADIUS) -> None:
+        views = [(math.radians(az), math.radians(el), radius) for _, az, el in FOUR_VIEWS_DEG]
+        super().__init__(env, views)
+
+
+class UniformViews(_ViewSequencePolicy):
+    def __init__(
+        self, env, elevation_deg: float = UNIFORM_ELEVATION_DEG, radius: float = UNIFORM_RADIUS
+    ) -> None:
+        budget = env.unwrapped.view_budget
+        views = [
+            (math.radians(-180.0 + 360.0 * k / budget), math.radians(elevation_deg), radius)
+            for k in range(budget)
+        ]
+        super().__init__(env, views)
+
+
+class RandomViews:
+    def __init__(self, env, seed: int | None = None) -> None:
+        self.env = env.unwrapped
+        self.action_space = self.env.action_space
+        self.action_space.seed(seed)
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return self.action_space.sample(), state
+
+
+class GreedyOracle:
+    """PRIVILEGED: best candidate view by ground-truth reward preview at every step."""
+
+    def __init__(self, env) -> None:
+        self.env = env.unwrapped
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        env = self.env
+        best_index, best_reward = 0, -math.inf
+        for index, view in enumerate(env.candidate_views):
+            preview = env.preview_view(*view)
+            if preview["reward"] > best_reward:
+                best_index, best_reward = index, preview["reward"]
+        return action_for_view(env, *env.candidate_views[best_index]), state
+
+
+def action_for_view(env, azimuth: float, elevation: float, radius: float):
+    """The env's action for a view: continuous encoding, or the nearest discrete candidate."""
+    if env.action_mode == "continuous":
+        return env.view_to_action(azimuth, elevation, radius)
+    candidates = np.array(env.candidate_views)
+    target = _unit_direction(azimuth, elevation)
+    directions = np.array([_unit_direction(a, e) for a, e, _ in candidates])
+    return int(np.argmax(directions @ target))
+
+
+def _unit_direction(azimuth: float, elevation: float) -> np.ndarray:
+    return np.array(
+        [
+            math.cos(elevation) * math.cos(azimuth),
+            math.cos(elevation) * math.sin(azimuth),
+            math.sin(elevation),
+        ]
+    )
+
+
+BASELINES = {
+    "four-view": FourViewpointBaseline,
+    "uniform": UniformViews,
+    "random": RandomViews,
+    "greedy-oracle": GreedyOracle,
+}

@@ -1,0 +1,1 @@
+"""The environments: one module each, composing sim/ and perception/ with a reward."""

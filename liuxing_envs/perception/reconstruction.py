@@ -1,0 +1,453 @@
+"""Surface reconstruction of a scanned object (the "留形" record) and its quality metrics.
+
+:func:`reconstruct` turns the fused world-frame cloud of a scan into a cleaned point cloud and
+a triangle mesh with open3d: voxel down-sampling, statistical outlier removal, normal
+estimation and orientation, screened Poisson meshing (Kazhdan & Hoppe 2013), trimming of
+low-density vertices (where Poisson extrapolated rather than fitted data) and cropping to the
+cloud's bounding box (Poisson closes open scans with a "balloon" beyond the data).
+
+:func:`reconstruction_metrics` scores a predicted surface against ground truth, following
+Tatarchenko et al., "What Do Single-view 3D Reconstruction Networks Learn?" (CVPR 2019):
+
+- ``pred_to_gt`` / ``gt_to_pred``: mean nearest-neighbour distance from every predicted point
+  to the ground truth (accuracy) and from every ground-truth point to the prediction
+  (completeness), metres;
+- ``chamfer``: the mean of those two means, metres (the *L1*, unsquared Chamfer distance
+  halved, so a prediction offset by d everywhere scores d);
+- ``precision``: share of predicted points within ``tau`` of the ground truth;
+- ``recall`` (= ``completeness``): share of ground-truth points within ``tau`` of the
+  prediction;
+- ``fscore``: their harmonic mean, ``2 P R / (P + R)`` (0 when both are 0).
+
+``tau`` defaults to 1 % of the object's size, the bounding-box diagonal of the ground truth
+unless ``object_size`` is given. All lengths are metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from liuxing_envs.perception.pointcloud import as_points
+
+__all__ = [
+    "DEFAULT_CROP_MARGIN_VOXELS",
+    "DEFAULT_DENSITY_QUANTILE",
+    "DEFAULT_METRIC_SAMPLES",
+    "DEFAULT_MIN_MESH_POINTS",
+    "DEFAULT_NORMAL_MAX_NN",
+    "DEFAULT_NORMAL_RADIUS_VOXELS",
+    "DEFAULT_OUTLIER_NEIGHBORS",
+    "DEFAULT_OUTLIER_PASSES",
+    "DEFAULT_OUTLIER_STD",
+    "DEFAULT_POISSON_DEPTH",
+    "DEFAULT_POISSON_SCALE",
+    "DEFAULT_RECONSTRUCTION_VOXEL_SIZE",
+    "DEFAULT_TAU_FRACTION",
+    "Reconstruction",
+    "reconstruct",
+    "reconstruction_metrics",
+    "sample_mesh_surface",
+]
+
+#: Down-sampling voxel edge in metres (about the coverage tolerance of a 15–25 cm object).
+DEFAULT_RECONSTRUCTION_VOXEL_SIZE = 0.002
+#: Statistical outlier removal: neighbours per point, and the cut-off in standard deviations
+#: of the mean neighbour distance above its average.
+DEFAULT_OUTLIER_NEIGHBORS = 20
+DEFAULT_OUTLIER_STD = 2.0
+#: Outliers inflate the standard deviation they are judged by, so one pass keeps many of them
+#: (measured: 10 % uniform outliers around a sphere, 69 % removed after one pass, 92 % after
+#: two, no surface point lost); each pass costs ~20 ms for 10k points.
+DEFAULT_OUTLIER_PASSES = 2
+#: Normal estimation: search radius in voxels (``normal_radius`` overrides) and neighbour cap.
+DEFAULT_NORMAL_RADIUS_VOXELS = 5.0
+DEFAULT_NORMAL_MAX_NN = 30
+#: Poisson octree depth (grid at most 2**depth per axis over ``scale`` × the cloud's extent).
+DEFAULT_POISSON_DEPTH = 8
+DEFAULT_POISSON_SCALE = 1.1
+#: Mesh vertices whose Poisson density is below this quantile are removed.
+DEFAULT_DENSITY_QUANTILE = 0.02
+#: The mesh is cropped to the cloud's bounding box grown by this many voxels per side.
+DEFAULT_CROP_MARGIN_VOXELS = 2.0
+#: Below this many cleaned points Poisson output is meaningless: no mesh is made.
+DEFAULT_MIN_MESH_POINTS = 100
+#: Metrics: tau as a fraction of the object size, and points sampled on a mesh.
+DEFAULT_TAU_FRACTION = 0.01
+DEFAULT_METRIC_SAMPLES = 16384
+
+
+def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
+    return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points)))
+
+
+@dataclass
+class Reconstruction:
+    """Result of :func:`reconstruct`.
+
+    Attributes
+    ----------
+    cloud
+        Cleaned, down-sampled cloud with oriented normals (world frame, metres).
+    mesh
+        Poisson mesh, trimmed and cropped; empty (no vertices) when ``has_mesh`` is False.
+    has_mesh
+        Whether a mesh was made; ``message`` says why not.
+    message
+        ``"ok"`` or the reason there is no mesh.
+    num_input_points, num_downsampled, num_outliers
+        Points given, after voxel down-sampling, and removed as outliers.
+    voxel_size
+        Down-sampling voxel edge used, metres.
+    """
+
+    cloud: o3d.geometry.PointCloud
+    mesh: o3d.geometry.TriangleMesh
+    has_mesh: bool
+    message: str
+    num_input_points: int
+    num_downsampled: int
+    num_outliers: int
+    voxel_size: float
+    parameters: dict = field(default_factory=dict)
+
+    @property
+    def points(self) -> np.ndarray:
+        """The cleaned cloud's points, ``(M, 3)`` float64 metres."""
+        return np.asarray(self.cloud.points).copy()
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """Mesh vertices, ``(V, 3)`` float64 metres."""
+        return np.asarray(self.mesh.vertices).copy()
+
+    @property
+    def triangles(self) -> np.ndarray:
+        """Mesh triangles as vertex indices, ``(T, 3)`` int."""
+        return np.asarray(self.mesh.triangles).copy()
+
+    def summary(self) -> dict:
+        """Counts and mesh properties as plain Python values (JSON-friendly)."""
+        summary = {
+            "has_mesh": self.has_mesh,
+            "message": self.message,
+            "num_input_points": self.num_input_points,
+            "num_downsampled": self.num_downsampled,
+            "num_outliers": self.num_outliers,
+            "num_points": len(self.cloud.points),
+            "num_vertices": len(self.mesh.vertices),
+            "num_triangles": len(self.mesh.triangles),
+            "voxel_size": self.voxel_size,
+            **self.parameters,
+        }
+        if self.has_mesh:
+            mesh = self.mesh
+            # Edges with other than two triangles: holes' rims (trimming) and crop cuts.
+            open_edges = len(mesh.get_non_manifold_edges(allow_boundary_edges=False))
+            summary["num_open_edges"] = open_edges
+            summary["edge_manifold"] = bool(mesh.is_edge_manifold(allow_boundary_edges=True))
+            # Closed 2-manifold: watertight up to self-intersections, which open3d's
+            # is_watertight also tests, at O(triangles²) (~2 s for 30k triangles).
+            summary["closed_manifold"] = open_edges == 0 and bool(mesh.is_vertex_manifold())
+            summary["surface_area"] = float(mesh.get_surface_area())
+        return summary
+
+    def save(self, directory, stem: str = "reconstruction") -> dict[str, Path]:
+        """Write ``<stem>_cloud.pcd``, ``<stem>_cloud.ply`` and ``<stem>_mesh.ply``.
+
+        The mesh file is written only when there is a mesh. Returns the written paths keyed
+        ``"cloud_pcd"``, ``"cloud_ply"``, ``"mesh_ply"``; raises ``OSError`` if open3d fails.
+        """
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        paths = {
+            "cloud_pcd": directory / f"{stem}_cloud.pcd",
+            "cloud_ply": directory / f"{stem}_cloud.ply",
+        }
+        for path in paths.values():
+            if not o3d.io.write_point_cloud(str(path), self.cloud):
+                raise OSError(f"open3d could not write {path}")
+        if self.has_mesh:
+            paths["mesh_ply"] = directory / f"{stem}_mesh.ply"
+            if not o3d.io.write_triangle_mesh(str(paths["mesh_ply"]), self.mesh):
+                raise OSError(f"open3d could not write {paths['mesh_ply']}")
+        return paths
+
+    def surface_points(self, count: int = DEFAULT_METRIC_SAMPLES, seed: int = 0) -> np.ndarray:
+        """``(count, 3)`` points sampled uniformly by area on the mesh (seeded, numpy only).
+
+        Without a mesh, the cleaned cloud's points (all of them) instead.
+        """
+        if not self.has_mesh:
+            return self.points
+        return sample_mesh_surface(self.vertices, self.triangles, count, seed=seed)
+
+    def metrics(
+        self,
+        gt_points,
+        tau: float | None = None,
+        *,
+        object_size: float | None = None,
+        num_samples: int = DEFAULT_METRIC_SAMPLES,
+        seed: int = 0,
+    ) -> dict:
+        """:func:`reconstruction_metrics` of the mesh surface (``num_samples`` points) or, with
+        no mesh, of the cloud, against ``gt_points``. Adds ``"from_mesh"``."""
+        result = reconstruction_metrics(
+            self.surface_points(num_samples, seed=seed), gt_points, tau, object_size=object_size
+        )
+        result["from_mesh"] = self.has_mesh
+        return result
+
+
+def sample_mesh_surface(
+    vertices: np.ndarray, triangles: np.ndarray, count: int, *, seed: int = 0
+) -> np.ndarray:
+    """``(count, 3)`` points uniformly distributed over a triangle mesh's area (seeded)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(triangles, dtype=np.intp)
+    if triangles.size == 0:
+        raise ValueError("the mesh has no triangles to sample")
+    a, b, c = (vertices[triangles[:, k]] for k in range(3))
+    areas = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    rng = np.random.default_rng(seed)
+    chosen = rng.choice(triangles.shape[0], size=int(count), p=areas / areas.sum())
+    # Uniform barycentric coordinates: reflect (u, v) back into the triangle when u + v > 1.
+    u, v = rng.random((2, int(count)))
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    a, b, c = a[chosen], b[chosen], c[chosen]
+    return a + u[:, None] * (b - a) + v[:, None] * (c - a)
+
+
+def _orient_normals(
+    points: np.ndarray, normals: np.ndarray, camera_locations: np.ndarray | None
+) -> np.ndarray:
+    """Flip normals to face the nearest camera, or away from the centroid without cameras."""
+    if camera_locations is None:
+        outward = points - points.mean(axis=0)
+    else:
+        # Nearest camera by |p|² - 2 p·c + |c|² (no (N, K, 3) temporary).
+        d2 = (
+            np.einsum("ij,ij->i", points, points)[:, None]
+            - 2.0 * points @ camera_locations.T
+            + np.einsum("ij,ij->i", camera_locations, camera_locations)[None]
+        )
+        outward = camera_locations[np.argmin(d2, axis=1)] - points
+    flip = np.einsum("ij,ij->i", normals, outward) < 0
+    normals = normals.copy()
+    normals[flip] *= -1.0
+    return normals
+
+
+def reconstruct(
+    points,
+    *,
+    voxel_size: float = DEFAULT_RECONSTRUCTION_VOXEL_SIZE,
+    outlier_neighbors: int = DEFAULT_OUTLIER_NEIGHBORS,
+    outlier_std: float = DEFAULT_OUTLIER_STD,
+    outlier_passes: int = DEFAULT_OUTLIER_PASSES,
+    normal_radius: float | None = None,
+    normal_max_nn: int = DEFAULT_NORMAL_MAX_NN,
+    poisson_depth: int = DEFAULT_POISSON_DEPTH,
+    poisson_scale: float = DEFAULT_POISSON_SCALE,
+    density_quantile: float = DEFAULT_DENSITY_QUANTILE,
+    crop_margin: float | None = None,
+    camera_locations=None,
+    min_mesh_points: int = DEFAULT_MIN_MESH_POINTS,
+) -> Reconstruction:
+    """Clean a scanned world-frame cloud and mesh it (open3d).
+
+    Parameters
+    ----------
+    points
+        ``(N, 3)`` finite world-frame points, metres (e.g. :meth:`VoxelMap.points`).
+    voxel_size
+        Down-sampling voxel edge, metres (``0`` skips down-sampling).
+    outlier_neighbors, outlier_std
+        Statistical outlier removal: a point goes when its mean distance to its
+        ``outlier_neighbors`` nearest neighbours exceeds the cloud's average by more than
+        ``outlier_std`` standard deviations. ``outlier_neighbors=0`` skips it.
+    outlier_passes
+        How many times to apply that filter (each pass re-estimates the statistics).
+    normal_radius, normal_max_nn
+        Normal estimation neighbourhood: radius in metres (default
+        ``DEFAULT_NORMAL_RADIUS_VOXELS * voxel_size``, or 1 cm when ``voxel_size`` is 0) and
+        at most ``normal_max_nn`` neighbours.
+    poisson_depth, poisson_scale
+        Screened Poisson octree depth and bounding-cube scale.
+    density_quantile
+        Vertices with Poisson density below this quantile are removed (0 keeps all).
+    crop_margin
+        The mesh is cropped to the cloud's axis-aligned box grown by this many metres per
+        side (default ``DEFAULT_CROP_MARGIN_VOXELS * voxel_size``).
+    camera_locations
+        ``(3,)`` or ``(K, 3)`` world-frame positions the scan was taken from: each normal is
+        flipped to face its nearest camera. That is right wherever the nearest camera is one
+        that saw the point (views spread around the object; it handles concave regions seen
+        from inside, such as a bowl seen from above, but not a surface whose nearest camera
+        looked at the other side of a thin wall). Without them, normals point away from the
+        cloud's centroid, which is right for roughly convex objects only (also what an empty
+        ``camera_locations`` means).
+    min_mesh_points
+        With fewer cleaned points no mesh is attempted (``has_mesh`` False).
+    """
+    points = as_points(points, "points", finite=True)
+    voxel_size = float(voxel_size)
+    if not np.isfinite(voxel_size) or voxel_size < 0:
+        raise ValueError(f"voxel_size must be >= 0 metres, got {voxel_size}")
+    if not 0.0 <= density_quantile < 1.0:
+        raise ValueError(f"density_quantile must be in [0, 1), got {density_quantile}")
+    if camera_locations is not None:
+        camera_locations = np.asarray(camera_locations, dtype=np.float64)
+        if camera_locations.size == 0:
+            camera_locations = None  # no views recorded: orient as without cameras
+        elif camera_locations.shape[-1] != 3 or camera_locations.ndim > 2:
+            raise ValueError(
+                f"camera_locations must have shape (3,) or (K, 3), got {camera_locations.shape}"
+            )
+        else:
+            camera_locations = camera_locations.reshape(-1, 3)
+            if not np.all(np.isfinite(camera_locations)):
+                raise ValueError("camera_locations must be finite")
+    if normal_radius is None:
+        normal_radius = DEFAULT_NORMAL_RADIUS_VOXELS * voxel_size if voxel_size > 0 else 0.01
+    if crop_margin is None:
+        crop_margin = DEFAULT_CROP_MARGIN_VOXELS * voxel_size
+    parameters = {
+        "outlier_neighbors": int(outlier_neighbors),
+        "outlier_std": float(outlier_std),
+        "outlier_passes": int(outlier_passes),
+        "normal_radius": float(normal_radius),
+        "poisson_depth": int(poisson_depth),
+        "density_quantile": float(density_quantile),
+        "crop_margin": float(crop_margin),
+    }
+
+    cloud = _cloud(points)
+    if voxel_size > 0 and len(points):
+        cloud = cloud.voxel_down_sample(voxel_size)
+    num_downsampled = len(cloud.points)
+    for _ in range(int(outlier_passes) if outlier_neighbors > 0 else 0):
+        if len(cloud.points) <= outlier_neighbors:
+            break
+        cloud, _ = cloud.remove_statistical_outlier(int(outlier_neighbors), float(outlier_std))
+    num_outliers = num_downsampled - len(cloud.points)
+
+    def result(has_mesh: bool, message: str, mesh=None) -> Reconstruction:
+        return Reconstruction(
+            cloud=cloud,
+            mesh=mesh if mesh is not None else o3d.geometry.TriangleMesh(),
+            has_mesh=has_mesh,
+            message=message,
+            num_input_points=int(points.shape[0]),
+            num_downsampled=num_downsampled,
+            num_outliers=num_outliers,
+            voxel_size=voxel_size,
+            parameters=parameters,
+        )
+
+    num_clean = len(cloud.points)
+    if num_clean >= 3:
+        cloud.estimate_normals(
+            o3d.geometry.KDTreeSearchParamHybrid(float(normal_radius), int(normal_max_nn))
+        )
+        cleaned = np.asarray(cloud.points)
+        cloud.normals = o3d.utility.Vector3dVector(
+            _orient_normals(cleaned, np.asarray(cloud.normals), camera_locations)
+        )
+    if num_clean < max(int(min_mesh_points), 3):
+        return result(False, f"too few points for a mesh: {num_clean} < {min_mesh_points}")
+
+    try:
+        mesh, densities = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+            cloud, depth=int(poisson_depth), scale=float(poisson_scale)
+        )
+    except RuntimeError as error:  # open3d reports failures as RuntimeError
+        return result(False, f"Poisson reconstruction failed: {error}")
+    densities = np.asarray(densities)
+    if density_quantile > 0 and densities.size:
+        mesh.remove_vertices_by_mask(densities < np.quantile(densities, density_quantile))
+    low = cloud.get_min_bound() - crop_margin
+    high = cloud.get_max_bound() + crop_margin
+    mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(low, high))
+    mesh.remove_degenerate_triangles()
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.triangles) == 0:
+        return result(False, "the Poisson mesh is empty after trimming and cropping")
+    mesh.compute_vertex_normals()
+    return result(True, "ok", mesh)
+
+
+def reconstruction_metrics(
+    predicted_points,
+    gt_points,
+    tau: float | None = None,
+    *,
+    object_size: float | None = None,
+    tau_fraction: float = DEFAULT_TAU_FRACTION,
+) -> dict:
+    """Chamfer distance, precision, recall and F-score at ``tau`` (see the module docstring).
+
+    Parameters
+    ----------
+    predicted_points
+        ``(P, 3)`` points on the reconstructed surface, metres (may be empty: then
+        distances are ``inf`` and precision, recall and F-score 0).
+    gt_points
+        ``(G, 3)`` ground-truth surface samples, metres (G >= 1). Sample densely: a point
+        exactly on the surface is up to half the sample spacing from the nearest sample, so
+        a spacing near ``tau`` makes precision look worse than it is. About
+        ``4 * area / tau**2`` samples suffice (measured: a box of 8 x 6 x 10 cm, tau 1.4 mm,
+        perfect-ish mesh: precision 0.75 against 8192 samples, 1.00 against 50 000).
+    tau
+        Distance threshold in metres; default ``tau_fraction * object_size``.
+    object_size
+        Object size in metres for the default tau; default the bounding-box diagonal of
+        ``gt_points``.
+
+    Returns
+    -------
+    dict
+        ``chamfer``, ``pred_to_gt``, ``gt_to_pred`` (metres), ``precision``, ``recall``,
+        ``completeness`` (= recall), ``fscore`` (in [0, 1]), ``tau`` (metres), ``num_predicted``,
+        ``num_gt``.
+    """
+    predicted = as_points(predicted_points, "predicted_points", finite=True)
+    gt = as_points(gt_points, "gt_points", finite=True)
+    if gt.shape[0] == 0:
+        raise ValueError("gt_points must hold at least one point")
+    if tau is None:
+        if object_size is None:
+            object_size = float(np.linalg.norm(gt.max(axis=0) - gt.min(axis=0)))
+        tau = float(tau_fraction) * float(object_size)
+    tau = float(tau)
+    if not np.isfinite(tau) or tau <= 0:
+        raise ValueError(f"tau must be a positive number of metres, got {tau}")
+
+    result = {"tau": tau, "num_predicted": int(predicted.shape[0]), "num_gt": int(gt.shape[0])}
+    if predicted.shape[0] == 0:
+        inf = float("inf")
+        result.update(
+            chamfer=inf, pred_to_gt=inf, gt_to_pred=inf, precision=0.0, recall=0.0, fscore=0.0
+        )
+    else:
+        pred_to_gt, _ = cKDTree(gt).query(predicted, k=1)
+        gt_to_pred, _ = cKDTree(predicted).query(gt, k=1)
+        precision = float(np.mean(pred_to_gt <= tau))
+        recall = float(np.mean(gt_to_pred <= tau))
+        total = precision + recall
+        result.update(
+            pred_to_gt=float(pred_to_gt.mean()),
+            gt_to_pred=float(gt_to_pred.mean()),
+            chamfer=0.5 * float(pred_to_gt.mean() + gt_to_pred.mean()),
+            precision=precision,
+            recall=recall,
+            fscore=2.0 * precision * recall / total if total > 0 else 0.0,
+        )
+    result["completeness"] = result["recall"]
+    return result

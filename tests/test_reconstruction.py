@@ -1,0 +1,225 @@
+"""Reconstruction (open3d) and its metrics, on shapes with known surfaces."""
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from liuxing_envs.perception.reconstruction import (
+    reconstruct,
+    reconstruction_metrics,
+    sample_mesh_surface,
+)
+
+CENTRE = np.array([0.5, 0.0, 0.07])
+RADIUS = 0.06
+# Poisson at depth 6 takes ~0.5 s here and is accurate enough for these shapes.
+DEPTH = 6
+
+
+def sphere(rng, n, radius=RADIUS):
+    v = rng.normal(size=(n, 3))
+    return CENTRE + radius * v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def box_surface(rng, n, half=(0.04, 0.03, 0.05), centre=(0.5, 0.0, 0.05)):
+    """Uniform samples on the surface of an axis-aligned box."""
+    half = np.asarray(half)
+    areas = np.array([half[1] * half[2], half[0] * half[2], half[0] * half[1]] * 2)
+    face = rng.choice(6, size=n, p=areas / areas.sum())
+    points = rng.uniform(-1, 1, (n, 3))
+    points[np.arange(n), face % 3] = np.where(face < 3, 1.0, -1.0)
+    return np.asarray(centre) + points * half
+
+
+@pytest.fixture(scope="module")
+def sphere_scan():
+    rng = np.random.default_rng(0)
+    # Ground truth dense enough (spacing << tau) that precision measures the mesh, not it.
+    return reconstruct(sphere(rng, 30000), poisson_depth=DEPTH), sphere(rng, 50000)
+
+
+def test_sphere_mesh_is_accurate_and_complete(sphere_scan):
+    result, gt = sphere_scan
+    assert result.has_mesh and result.message == "ok"
+    summary = result.summary()
+    assert summary["edge_manifold"]
+    # The mesh is a sphere: every vertex on it to within a millimetre.
+    distance = np.linalg.norm(result.vertices - CENTRE, axis=1) - RADIUS
+    assert np.abs(distance).max() < 0.002
+    metrics = result.metrics(gt)
+    assert metrics["from_mesh"]
+    assert metrics["tau"] == pytest.approx(0.01 * np.linalg.norm(gt.max(0) - gt.min(0)))
+    assert metrics["chamfer"] < 0.002
+    assert metrics["fscore"] > 0.95
+    assert metrics["precision"] > 0.95 and metrics["recall"] > 0.95
+    # Trimming leaves a few small holes: under 1 % of the edges (1.5 per triangle) on a rim.
+    assert 0 < summary["num_open_edges"] < 0.01 * 1.5 * len(result.triangles)
+    # Trimming 2 % of the lowest-density vertices removes little of the area: 4 pi r².
+    assert summary["surface_area"] == pytest.approx(4 * np.pi * RADIUS**2, rel=0.05)
+
+
+def test_untrimmed_sphere_mesh_is_watertight():
+    rng = np.random.default_rng(1)
+    result = reconstruct(sphere(rng, 20000), poisson_depth=DEPTH, density_quantile=0.0)
+    assert result.has_mesh
+    summary = result.summary()
+    assert summary["closed_manifold"] and summary["num_open_edges"] == 0
+    # A closed surface of genus 0 (a sphere): V - E + F = 2, with E = 3F / 2.
+    vertices, triangles = len(result.vertices), len(result.triangles)
+    assert vertices - 3 * triangles // 2 + triangles == 2
+
+
+def test_box_mesh_scores_well():
+    rng = np.random.default_rng(2)
+    result = reconstruct(box_surface(rng, 30000), poisson_depth=DEPTH)
+    metrics = result.metrics(box_surface(rng, 50000))
+    assert result.has_mesh
+    assert metrics["chamfer"] < 0.002
+    assert metrics["fscore"] > 0.9 and metrics["precision"] > 0.95
+    # Cropping to the cloud's box (+ 2 voxels) keeps the mesh inside it.
+    assert np.all(result.vertices.min(0) >= result.cloud.get_min_bound() - 0.0041)
+    assert np.all(result.vertices.max(0) <= result.cloud.get_max_bound() + 0.0041)
+
+
+def test_uniform_outliers_are_removed_and_the_surface_kept():
+    rng = np.random.default_rng(3)
+    surface = sphere(rng, 20000)
+    outliers = rng.uniform(surface.min(0) - 0.03, surface.max(0) + 0.03, (2000, 3))
+    # A huge min_mesh_points skips Poisson: only the cleaning is under test.
+    noisy = reconstruct(np.vstack([surface, outliers]), min_mesh_points=10**9)
+    clean = reconstruct(surface, min_mesh_points=10**9)
+    off_surface = np.abs(np.linalg.norm(noisy.points - CENTRE, axis=1) - RADIUS) > 0.005
+    far_outliers = np.abs(np.linalg.norm(outliers - CENTRE, axis=1) - RADIUS) > 0.005
+    assert off_surface.sum() < 0.1 * far_outliers.sum()  # > 90 % of them gone
+    on_surface = len(noisy.points) - off_surface.sum()
+    assert on_surface >= 0.99 * len(clean.points)  # and hardly any surface point lost
+    assert not noisy.has_mesh and "too few points" in noisy.message
+
+
+def test_normals_face_the_cameras_even_inside_a_bowl():
+    rng = np.random.default_rng(4)
+    # The inside of a hemispherical bowl, seen from a camera above its centre: its normals
+    # must point inwards (towards the camera), the opposite of "away from the centroid".
+    bowl = sphere(rng, 6000)
+    bowl = bowl[bowl[:, 2] < CENTRE[2]]
+    camera = CENTRE + [0.0, 0.0, 0.02]
+    seen = reconstruct(bowl, camera_locations=camera, min_mesh_points=10**9)
+    normals, points = np.asarray(seen.cloud.normals), seen.points
+    assert np.mean(np.einsum("ij,ij->i", normals, camera - points) > 0) > 0.99
+    # On a full sphere with cameras all around, and without cameras, normals point outwards.
+    ball = sphere(rng, 6000)
+    cameras = CENTRE + 0.4 * np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1]])
+    for locations in (cameras, None):
+        result = reconstruct(ball, camera_locations=locations, min_mesh_points=10**9)
+        outward = np.einsum("ij,ij->i", np.asarray(result.cloud.normals), result.points - CENTRE)
+        assert np.mean(outward > 0) > 0.99
+
+
+def test_too_few_points_give_a_cloud_without_a_mesh(tmp_path):
+    rng = np.random.default_rng(5)
+    result = reconstruct(sphere(rng, 30))
+    assert not result.has_mesh and "too few points" in result.message
+    assert len(result.cloud.points) > 0 and len(result.mesh.triangles) == 0
+    metrics = result.metrics(sphere(rng, 500))
+    assert not metrics["from_mesh"] and metrics["num_predicted"] == len(result.cloud.points)
+    paths = result.save(tmp_path)
+    assert set(paths) == {"cloud_pcd", "cloud_ply"}
+    empty = reconstruct(np.empty((0, 3)))
+    assert not empty.has_mesh and len(empty.cloud.points) == 0
+    assert empty.metrics(sphere(rng, 10))["fscore"] == 0.0
+
+
+def test_save_writes_readable_files(sphere_scan, tmp_path):
+    result, _ = sphere_scan
+    paths = result.save(tmp_path / "out", stem="mug")
+    assert paths["mesh_ply"].name == "mug_mesh.ply"
+    for key in ("cloud_pcd", "cloud_ply"):
+        cloud = o3d.io.read_point_cloud(str(paths[key]))
+        assert len(cloud.points) == len(result.cloud.points)
+        np.testing.assert_allclose(np.asarray(cloud.points), result.points, atol=1e-6)
+    mesh = o3d.io.read_triangle_mesh(str(paths["mesh_ply"]))
+    assert len(mesh.triangles) == len(result.mesh.triangles)
+    np.testing.assert_allclose(np.asarray(mesh.vertices), result.vertices, atol=1e-6)
+
+
+def test_metrics_on_known_configurations():
+    rng = np.random.default_rng(6)
+    gt = sphere(rng, 4000)
+    perfect = reconstruction_metrics(gt, gt, 0.001)
+    assert perfect["chamfer"] == 0.0
+    assert perfect["precision"] == perfect["recall"] == perfect["fscore"] == 1.0
+    # A sphere 0.5 mm too big: every distance is 0.5 mm, so within tau = 1 mm, not 0.25 mm.
+    bigger = CENTRE + (gt - CENTRE) * (RADIUS + 0.0005) / RADIUS
+    near = reconstruction_metrics(bigger, gt, 0.001)
+    assert near["chamfer"] == pytest.approx(0.0005, rel=1e-6)
+    assert near["fscore"] == 1.0
+    assert reconstruction_metrics(bigger, gt, 0.00025)["fscore"] == 0.0
+    # Half the surface: precise but incomplete.
+    half = gt[gt[:, 0] > CENTRE[0]]
+    partial = reconstruction_metrics(half, gt, 0.001)
+    assert partial["precision"] == 1.0
+    assert partial["recall"] == pytest.approx(len(half) / len(gt), abs=0.02)
+    assert partial["completeness"] == partial["recall"]
+    assert partial["fscore"] == pytest.approx(
+        2 * partial["recall"] / (1 + partial["recall"]), rel=1e-12
+    )
+    assert partial["gt_to_pred"] > partial["pred_to_gt"] == 0.0
+    # Empty prediction.
+    none = reconstruction_metrics(np.empty((0, 3)), gt, 0.001)
+    assert none["fscore"] == 0.0 and none["chamfer"] == float("inf")
+
+
+def test_metrics_are_symmetric_where_they_should_be():
+    rng = np.random.default_rng(7)
+    a = sphere(rng, 3000) + rng.normal(scale=0.001, size=(3000, 3))
+    b = sphere(rng, 2000)[:1500]
+    ab = reconstruction_metrics(a, b, 0.002)
+    ba = reconstruction_metrics(b, a, 0.002)
+    assert ab["chamfer"] == pytest.approx(ba["chamfer"], rel=1e-12)
+    assert ab["precision"] == ba["recall"] and ab["recall"] == ba["precision"]
+    assert ab["fscore"] == pytest.approx(ba["fscore"], rel=1e-12)
+    assert ab["pred_to_gt"] == ba["gt_to_pred"]
+    assert 0.0 < ab["fscore"] < 1.0
+
+
+def test_default_tau_is_one_percent_of_the_object_size():
+    rng = np.random.default_rng(8)
+    gt = sphere(rng, 1000)
+    diagonal = np.linalg.norm(gt.max(0) - gt.min(0))
+    assert reconstruction_metrics(gt, gt)["tau"] == pytest.approx(0.01 * diagonal)
+    assert reconstruction_metrics(gt, gt, object_size=0.3)["tau"] == pytest.approx(0.003)
+    assert reconstruction_metrics(gt, gt, 0.004, object_size=0.3)["tau"] == 0.004
+    with pytest.raises(ValueError, match="tau"):
+        reconstruction_metrics(gt, gt, 0.0)
+    with pytest.raises(ValueError, match="gt_points"):
+        reconstruction_metrics(gt, np.empty((0, 3)))
+    with pytest.raises(ValueError, match="shape"):
+        reconstruction_metrics(gt[:, :2], gt)
+
+
+def test_mesh_surface_sampling_is_uniform_by_area():
+    # Two triangles: one of area 0.5, one of area 0.125 (a quarter of the samples... of 0.625).
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0], [2.5, 0, 0], [2, 0, 0.5]])
+    triangles = np.array([[0, 1, 2], [3, 4, 5]])
+    samples = sample_mesh_surface(vertices, triangles, 20000, seed=0)
+    first = samples[:, 0] < 1.5
+    assert first.mean() == pytest.approx(0.5 / 0.625, abs=0.01)
+    on_first, on_second = samples[first], samples[~first]
+    assert np.all(on_first[:, 2] == 0) and np.all(on_first[:, :2].sum(1) <= 1 + 1e-12)
+    assert np.all(on_second[:, 1] == 0)
+    # Uniform on a triangle: the mean is the centroid.
+    np.testing.assert_allclose(on_first.mean(0), [1 / 3, 1 / 3, 0], atol=0.01)
+    assert np.array_equal(samples, sample_mesh_surface(vertices, triangles, 20000, seed=0))
+
+
+def test_invalid_input_is_rejected():
+    with pytest.raises(ValueError, match="shape"):
+        reconstruct(np.zeros((10, 2)))
+    with pytest.raises(ValueError, match="camera_locations"):
+        reconstruct(np.zeros((10, 3)), camera_locations=np.zeros((4, 2)))
+    # No recorded views is not an error: normals are then oriented from the centroid.
+    assert len(reconstruct(np.zeros((10, 3)), camera_locations=[]).cloud.points) == 1
+    with pytest.raises(ValueError, match="finite"):
+        reconstruct(np.full((10, 3), np.nan))
+    with pytest.raises(ValueError, match="density_quantile"):
+        reconstruct(np.zeros((10, 3)), density_quantile=1.0)

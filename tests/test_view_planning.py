@@ -1,0 +1,219 @@
+"""ViewPlanning-v0: API conformance, reward bookkeeping, coverage, determinism, bad input."""
+
+import pickle
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import liuxing_envs  # noqa: F401  (registers the ids)
+from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
+from liuxing_envs.envs.view_planning import ViewPlanningEnv
+
+ENV_ID = "ViewPlanning-v0"
+#: Small and fast settings shared by most tests (3 objects, one scale).
+FAST = {"objects": ["box", "mug", "cylinder"], "scales": (1.0,), "coverage_samples": 2048}
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = gym.make(ENV_ID, **FAST)
+    yield env
+    env.close()
+
+
+def run_episode(env, policy, seed):
+    obs, info = env.reset(seed=seed)
+    infos, rewards = [info], []
+    done = False
+    while not done:
+        action, _ = policy.predict(obs, deterministic=True)
+        obs, reward, terminated, truncated, info = env.step(action)
+        infos.append(info)
+        rewards.append(reward)
+        done = terminated or truncated
+    return obs, rewards, infos
+
+
+def test_registered_with_the_view_budget_as_episode_limit():
+    spec = gym.spec(ENV_ID)
+    assert spec.max_episode_steps == 4
+    env = gym.make("liuxing_envs:ViewPlanning-v0", **FAST)
+    assert isinstance(env.unwrapped, ViewPlanningEnv)
+    env.close()
+
+
+def test_passes_gymnasium_env_checker():
+    env = ViewPlanningEnv(**FAST)
+    check_env(env, skip_render_check=True)
+    env.close()
+
+
+def test_passes_sb3_env_checker():
+    for action_mode in ("continuous", "discrete"):
+        env = ViewPlanningEnv(action_mode=action_mode, **FAST)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # SB3's advice on spaces counts as a failure here
+            sb3_check_env(env, warn=True)
+        env.close()
+
+
+def test_reward_terms_sum_to_the_reward_and_coverage_is_monotone(env):
+    _, rewards, infos = run_episode(env, RandomViews(env, seed=3), seed=11)
+    assert len(rewards) == 4
+    coverages = [info["coverage"] for info in infos]
+    assert all(0.0 <= c <= 1.0 for c in coverages)
+    assert np.all(np.diff(coverages) >= 0)
+    assert coverages[0] > 0  # the start view sees the object
+    for reward, info in zip(rewards, infos[1:], strict=True):
+        terms = info["reward_coverage"] + info["reward_motion"] + info["reward_refusal"]
+        assert reward == pytest.approx(terms)
+        assert info["reward_coverage"] == pytest.approx(10.0 * info["coverage_gain"])
+        assert info["reward_motion"] == pytest.approx(-0.01 * info["path_length"])
+        assert info["reward_refusal"] == (-0.1 if info["refused"] else 0.0)
+    assert infos[-1]["coverage"] == pytest.approx(
+        infos[0]["coverage"] + sum(i["coverage_gain"] for i in infos[1:])
+    )
+
+
+def test_same_seed_same_episode_and_different_seeds_differ(env):
+    first = run_episode(env, FourViewpointBaseline(env), seed=5)
+    second = run_episode(env, FourViewpointBaseline(env), seed=5)
+    np.testing.assert_array_equal(first[0]["depth"], second[0]["depth"])
+    assert first[1] == second[1]
+    placements = set()
+    for seed in range(6):
+        env.reset(seed=seed)
+        placed = env.unwrapped.placed
+        placements.add((placed.name, round(float(placed.position[0]), 6), round(placed.yaw, 6)))
+    assert len(placements) == 6
+    assert len({p[0] for p in placements}) > 1
+
+
+def test_a_view_of_nothing_earns_no_coverage():
+    env = ViewPlanningEnv(**FAST)
+    env.reset(seed=0)
+    # Look away from the object: straight down at the table far off to the side.
+    env.unwrapped.center = np.array([0.45, 0.35, 0.0])
+    _, reward, _, _, info = env.step(env.view_to_action(0.0, np.pi / 2, 0.35))
+    assert info["reachable"] and info["coverage_gain"] == 0.0
+    assert reward == pytest.approx(info["reward_motion"])
+    env.close()
+
+
+def test_four_view_coverage_is_high_but_the_oracle_does_better():
+    env = ViewPlanningEnv(action_mode="discrete", **FAST)
+    four, oracle = FourViewpointBaseline(env), GreedyOracle(env)
+    four_final = [run_episode(env, four, seed)[2][-1]["coverage"] for seed in range(3)]
+    oracle_final = [run_episode(env, oracle, seed)[2][-1]["coverage"] for seed in range(3)]
+    assert np.mean(four_final) > 0.5
+    assert np.mean(oracle_final) > np.mean(four_final) + 0.03
+    env.close()
+
+
+def test_uniform_views_spread_around_the_object(env):
+    _, _, infos = run_episode(env, UniformViews(env), seed=2)
+    azimuths = sorted(round(info["viewpoint"][0]) for info in infos[1:])
+    assert azimuths == [-180, -90, 0, 90]
+
+
+def test_unreachable_view_is_refused_and_penalised():
+    env = ViewPlanningEnv(**FAST)
+    env.reset(seed=1)
+    before = env.unwrapped.arm.qpos
+    # Far side, grazing elevation, largest radius: beyond the arm's reach.
+    _, reward, _, _, info = env.step(env.view_to_action(0.0, np.deg2rad(20), 0.45))
+    assert info["refused"] and not info["reachable"]
+    assert reward == pytest.approx(-0.1)
+    np.testing.assert_array_equal(env.unwrapped.arm.qpos, before)
+    env.close()
+
+
+def test_user_meshes_load(tmp_path):
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh.create_box(0.3, 0.2, 0.1)
+    path = tmp_path / "crate.stl"
+    mesh.compute_triangle_normals()
+    o3d.io.write_triangle_mesh(str(path), mesh)
+    env = ViewPlanningEnv(objects=[str(path)], scales=(1.0,), coverage_samples=1024)
+    _, info = env.reset(seed=0)
+    assert info["object"] == "crate" and info["coverage"] > 0.1
+    env.close()
+    with pytest.raises(FileNotFoundError, match="missing.obj"):
+        ViewPlanningEnv(objects=[str(tmp_path / "missing.obj")])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"view_budget": 0}, "view_budget must be an integer in \\[1, 64\\]"),
+        ({"action_mode": "joint"}, "action_mode='joint' is not allowed"),
+        ({"object_set": "test"}, "object_set='test' is not allowed"),
+        ({"motion": "teleport"}, "motion='teleport' is not allowed"),
+        ({"radius_range": (0.5, 0.3)}, "radius_range must satisfy"),
+        ({"epsilon_fraction": -1.0}, "epsilon_fraction must be a number"),
+        ({"objects": "box"}, "objects must be a non-empty list"),
+        ({"objects": ["no_such_object"]}, "no_such_object"),
+    ],
+)
+def test_bad_kwargs_fail_with_clear_messages(kwargs, message):
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        ViewPlanningEnv(**kwargs)
+
+
+def test_bad_actions_get_clear_errors_and_out_of_bounds_are_clipped(env):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="must be finite"):
+        env.step(np.array([np.nan, 0.0, 0.0], dtype=np.float32))
+    with pytest.raises(ValueError, match="shape \\(3,\\)"):
+        env.step(np.zeros(2, dtype=np.float32))
+    _, _, _, _, clipped = env.step(np.array([0.0, 5.0, -5.0], dtype=np.float32))
+    assert clipped["viewpoint"][1] == pytest.approx(90.0)  # elevation clipped to its maximum
+    assert clipped["viewpoint"][2] == pytest.approx(0.30)  # radius clipped to its minimum
+    with pytest.raises(ValueError, match="unknown reset option"):
+        env.reset(options={"colour": "red"})
+
+
+def test_step_before_reset_is_an_error():
+    env = ViewPlanningEnv(**FAST)
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step(env.action_space.sample())
+    env.close()
+
+
+def test_pickles_and_vectorises():
+    env = ViewPlanningEnv(**FAST)
+    env.reset(seed=4)
+    clone = pickle.loads(pickle.dumps(env))
+    action = env.view_to_action(np.pi / 2, np.pi / 4, 0.38)
+    a, b = env.step(action), clone.step(action)
+    np.testing.assert_array_equal(a[0]["depth"], b[0]["depth"])
+    assert a[1] == b[1]
+    env.close()
+    clone.close()
+    # This test process already holds OpenGL contexts, which a forked worker would inherit
+    # and hang on; spawned workers start clean (see the README on vector envs).
+    for mode, vector_kwargs in (("sync", {}), ("async", {"context": "spawn"})):
+        envs = gym.make_vec(
+            ENV_ID, num_envs=2, vectorization_mode=mode, vector_kwargs=vector_kwargs, **FAST
+        )
+        obs, _ = envs.reset(seed=[0, 1])
+        assert obs["depth"].shape == (2, 1, 64, 64)
+        obs, rewards, *_ = envs.step(envs.action_space.sample())
+        assert rewards.shape == (2,)
+        envs.close()
+
+
+def test_render_shows_the_scene_with_points_and_frustum():
+    env = ViewPlanningEnv(render_mode="rgb_array", **FAST)
+    env.reset(seed=0)
+    env.step(env.view_to_action(np.pi / 2, np.pi / 4, 0.38))
+    frame = env.render()
+    assert frame.shape == (480, 640, 3) and frame.dtype == np.uint8
+    green = (frame[..., 1] > 200) & (frame[..., 0] < 80) & (frame[..., 2] < 120)
+    assert green.sum() > 20  # the fused points are drawn
+    env.close()
