@@ -10,8 +10,8 @@ from a view to an action (continuous or discrete) belongs to that environment.
   the arm, which looks along +x: right is -y, azimuth -90 deg; "front" is the side facing the
   arm, azimuth 180 deg). Side views at ``FOUR_VIEW_ELEVATION_DEG``, all at
   ``FOUR_VIEW_RADIUS``. The reference every learned agent is compared against.
-- :class:`UniformViews`: the budget spread evenly around the object: azimuths 360/N apart at
-  ``UNIFORM_ELEVATION_DEG``.
+- :class:`UniformViews`: the budget spread evenly around the object: azimuths 360/N apart,
+  starting half a step from the front (the diagonals for N = 4), at ``UNIFORM_ELEVATION_DEG``.
 - :class:`RandomViews`: uniform samples of the action space (seeded).
 - :class:`GreedyOracle`: PRIVILEGED (uses ground truth): at each step it previews every
   candidate view of the environment's discrete set against the ground-truth coverage and
@@ -24,7 +24,9 @@ import math
 
 import numpy as np
 
-FOUR_VIEW_ELEVATION_DEG = 30.0
+#: 40 deg: at 30 deg the front view (between arm and object) is out of reach for 3 in 4
+#: placements; at 40 deg all four views are reachable across the placement region.
+FOUR_VIEW_ELEVATION_DEG = 40.0
 FOUR_VIEW_RADIUS = 0.38
 FOUR_VIEWS_DEG = (  # (name, azimuth, elevation)
     ("top", 0.0, 90.0),
@@ -65,8 +67,10 @@ class UniformViews(_ViewSequencePolicy):
         self, env, elevation_deg: float = UNIFORM_ELEVATION_DEG, radius: float = UNIFORM_RADIUS
     ) -> None:
         budget = env.unwrapped.view_budget
+        # Offset by half a step: with four views, the diagonals (-135, -45, 45, 135 deg)
+        # avoid both the far side, beyond the arm's reach, and the arm's own base.
         views = [
-            (math.radians(-180.0 + 360.0 * k / budget), math.radians(elevation_deg), radius)
+            (math.radians(-180.0 + 360.0 * (k + 0.5) / budget), math.radians(elevation_deg), radius)
             for k in range(budget)
         ]
         super().__init__(env, views)

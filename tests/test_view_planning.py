@@ -117,7 +117,7 @@ def test_four_view_coverage_is_high_but_the_oracle_does_better():
 def test_uniform_views_spread_around_the_object(env):
     _, _, infos = run_episode(env, UniformViews(env), seed=2)
     azimuths = sorted(round(info["viewpoint"][0]) for info in infos[1:])
-    assert azimuths == [-180, -90, 0, 90]
+    assert azimuths == [-135, -45, 45, 135]
 
 
 def test_unreachable_view_is_refused_and_penalised():
@@ -216,4 +216,75 @@ def test_render_shows_the_scene_with_points_and_frustum():
     assert frame.shape == (480, 640, 3) and frame.dtype == np.uint8
     green = (frame[..., 1] > 200) & (frame[..., 0] < 80) & (frame[..., 2] < 120)
     assert green.sum() > 20  # the fused points are drawn
+    env.close()
+
+
+def test_discrete_mode_offers_the_documented_candidates_and_rejects_others():
+    env = ViewPlanningEnv(action_mode="discrete", **FAST)
+    assert env.action_space.n == len(env.candidate_views) == 33
+    assert env.candidate_views[-1][1] == pytest.approx(np.pi / 2)  # the top view comes last
+    env.reset(seed=0)
+    for bad in (33, -1, 2.5):
+        with pytest.raises(ValueError, match="discrete action"):
+            env.step(bad)
+    _, _, _, _, info = env.step(32)
+    assert info["viewpoint"][1] == pytest.approx(90.0)
+    env.close()
+
+
+def test_dynamic_motion_reaches_the_view_under_physics():
+    env = ViewPlanningEnv(motion="dynamic", **FAST)
+    env.reset(seed=3)
+    _, _, _, _, info = env.step(env.view_to_action(np.pi / 2, np.pi / 4, 0.38))
+    assert info["reachable"] and info["path_length"] > 0.5
+    assert env.data.time > 0.5  # simulated time passed while the servos moved the arm
+    position, rotation = env.camera.pose(env.data)
+    to_center = env.center - position
+    assert np.linalg.norm(to_center) == pytest.approx(0.38, abs=3e-3)
+    optical_axis = -rotation[:, 2]
+    assert optical_axis @ to_center / np.linalg.norm(to_center) > np.cos(np.deg2rad(1.0))
+    env.close()
+
+
+def test_noisy_depth_is_seeded():
+    from liuxing_envs.sim.camera import DepthNoise
+
+    env = ViewPlanningEnv(depth_noise=DepthNoise.realsense_like(), **FAST)
+    first, _ = env.reset(seed=8)
+    second, _ = env.reset(seed=8)
+    third, _ = env.reset(seed=9)
+    np.testing.assert_array_equal(first["depth"], second["depth"])
+    assert not np.array_equal(first["depth"], third["depth"])
+    env.close()
+
+
+def test_ground_truth_only_in_the_privileged_observation():
+    plain = ViewPlanningEnv(**FAST)
+    obs, _ = plain.reset(seed=0)
+    assert "coverage" not in obs
+    privileged = ViewPlanningEnv(privileged=True, **FAST)
+    obs, info = privileged.reset(seed=0)
+    assert obs["coverage"][0] == pytest.approx(info["coverage"])
+    plain.close()
+    privileged.close()
+
+
+def test_held_out_set_holds_only_held_out_objects():
+    from liuxing_envs.sim.objects import OBJECT_SETS
+
+    env = ViewPlanningEnv(object_set="held_out", scales=(1.0,), coverage_samples=1024)
+    assert set(env.object_names) == set(OBJECT_SETS["held_out"])
+    assert not set(env.object_names) & set(OBJECT_SETS["train"])
+    env.close()
+
+
+@pytest.mark.slow
+def test_reconstruction_of_a_four_view_scan_is_scored_and_saved(tmp_path):
+    env = ViewPlanningEnv(objects=["mug"], scales=(1.0,), coverage_samples=4096)
+    run_episode(env, FourViewpointBaseline(env), seed=0)
+    record, metrics = env.reconstruct(save_dir=tmp_path, poisson_depth=7)
+    assert record.has_mesh
+    assert metrics["chamfer"] < 0.01  # metres
+    assert 0.0 <= metrics["fscore"] <= 1.0 and metrics["precision"] > 0.5
+    assert {p.suffix for p in tmp_path.iterdir()} >= {".ply", ".pcd"}
     env.close()

@@ -18,7 +18,13 @@ from liuxing_envs.perception.reconstruction import Reconstruction, reconstruct
 from liuxing_envs.sim.arm import MOTION_MODES, Arm
 from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera, DepthNoise
 from liuxing_envs.sim.object_stage import ObjectStage
-from liuxing_envs.sim.objects import OBJECT_SETS, get_object, load_mesh_file, observable_samples
+from liuxing_envs.sim.objects import (
+    OBJECT_SETS,
+    get_object,
+    load_mesh_file,
+    observable_samples,
+    surface_samples,
+)
 from liuxing_envs.sim.scene import OVERVIEW_CAMERA, WRIST_CAMERA, load_scene_spec, reset_to_home
 from liuxing_envs.sim.viewpoints import look_at, sphere_point
 
@@ -36,7 +42,9 @@ DEFAULT_ELEVATION_RANGE_DEG = (20.0, 90.0)
 DEFAULT_RADIUS_RANGE = (0.30, 0.45)
 #: The discrete action set: every azimuth at every elevation, at one radius, plus the top view.
 DEFAULT_DISCRETE_AZIMUTHS_DEG = tuple(range(-180, 180, 45))
-DEFAULT_DISCRETE_ELEVATIONS_DEG = (30.0, 60.0)
+#: 8 azimuths x 4 elevations + the top view = 33 candidates (the size of RL-NBV's action set);
+#: the four-view and uniform baselines' views are among them.
+DEFAULT_DISCRETE_ELEVATIONS_DEG = (25.0, 40.0, 55.0, 70.0)
 DEFAULT_DISCRETE_RADIUS = 0.38
 DEFAULT_COVERAGE_SAMPLES = 8192
 #: Coverage tolerance as a share of the bounding-box diagonal (3%: 4.5-7.5 mm). It must exceed
@@ -58,6 +66,11 @@ DEFAULT_TABLE_CROP_HEIGHT = 0.0015  # m; fused points must be this far above the
 #: Fused points must lie in this world box (above the table, around the object region).
 WORKSPACE_LOWER = (0.15, -0.4, 0.0)
 WORKSPACE_UPPER = (0.85, 0.4, 0.5)
+#: Random IK restarts per requested view (after the current and home seeds). Unreachable
+#: views cost every restart, so fewer than the Arm's default; roll-free IK rarely needs many.
+VIEW_IK_RESTARTS = 4
+#: Ground-truth surface samples for reconstruction metrics (about 4 * area / τ² are needed).
+METRIC_SAMPLES = 100_000
 USER_MESH_SIZE = 0.15  # m, largest bounding-box side of users' meshes
 VIEW_HISTORY_FEATURES = 5
 RENDER_SIZE = (480, 640)
@@ -96,7 +109,7 @@ class ViewPlanningEnv(gym.Env):
     azimuth 180° is the side facing the arm. Values outside [-1, 1] are clipped; NaN or inf
     raise ``ValueError``. ``action_mode="discrete"``: ``Discrete(K)`` indexes
     :attr:`candidate_views`: every azimuth in ``discrete_azimuths_deg`` at every elevation in
-    ``discrete_elevations_deg`` at ``discrete_radius``, then the top view (K = 17 by default).
+    ``discrete_elevations_deg`` at ``discrete_radius``, then the top view (K = 33 by default).
 
     **Reaching a view.** The camera must look at the centre from the chosen point (roll is
     free). IK is solved for that pose; the arm takes the straight joint path if it is free,
@@ -254,6 +267,9 @@ class ViewPlanningEnv(gym.Env):
             for mesh in meshes
             for scale in self.scales
         }
+        # One tracker per variant, in the object's frame, built on first use and reset per
+        # episode: its lookup grid costs milliseconds to build, a reset microseconds.
+        self._trackers: dict[tuple[str, float], CoverageTracker] = {}
         spec = load_scene_spec()
         self._stage.add_to_spec(spec)
         self.model = spec.compile()
@@ -300,8 +316,6 @@ class ViewPlanningEnv(gym.Env):
         self._history = np.zeros((view_budget, VIEW_HISTORY_FEATURES), dtype=np.float32)
         self._depth = np.zeros((resolution, resolution), dtype=np.float32)
         self._camera_locations: list[np.ndarray] = []
-        self._gt_samples = np.zeros((0, 3))
-        self._epsilon = 0.0
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -330,11 +344,8 @@ class ViewPlanningEnv(gym.Env):
         )
         mujoco.mj_forward(self.model, self.data)
 
-        samples = self._ground_truth[(name, scale)]
-        observable = samples.observable
-        self._gt_samples = self.placed.to_world(samples.points)
-        self._epsilon = self.epsilon_fraction * scale * self._stage.meshes[name].diagonal
-        self.coverage = CoverageTracker(self._gt_samples, self._epsilon, observable=observable)
+        self.coverage = self._tracker(name, scale)
+        self.coverage.reset()
         self.map.reset()
         self.views_used = 0
         self._history[:] = 0.0
@@ -342,7 +353,7 @@ class ViewPlanningEnv(gym.Env):
 
         points = self._capture()
         self.center = self._estimate_center(points)
-        self.coverage.update(points)
+        self.coverage.update(self.placed.to_object(points))
         self._episode_ready = True
         return self._observation(), self._info(0.0, {}, reached=True, refused=False, path=0.0)
 
@@ -352,7 +363,7 @@ class ViewPlanningEnv(gym.Env):
         azimuth, elevation, radius = self._view_from_action(action)
         eye = sphere_point(self.center, azimuth, elevation, radius)
         rotation = look_at(eye, self.center)
-        ik = self.arm.solve_ik(eye, rotation, roll_free=True)
+        ik = self.arm.solve_ik(eye, rotation, roll_free=True, restarts=VIEW_IK_RESTARTS)
         plan = self.arm.plan_path(ik.qpos) if ik.success else None
         gain, path_length, reached = 0.0, 0.0, False
         if plan is not None:
@@ -360,7 +371,7 @@ class ViewPlanningEnv(gym.Env):
             path_length = motion.path_length
             reached = motion.reached
             if reached:
-                gain = self.coverage.update(self._capture())
+                gain = self.coverage.update(self.placed.to_object(self._capture()))
         refused = not reached
         self._history[self.views_used] = [
             math.cos(azimuth),
@@ -444,7 +455,10 @@ class ViewPlanningEnv(gym.Env):
             self.map.points(), camera_locations=np.array(self._camera_locations), **kwargs
         )
         diagonal = self.placed.scale * self._stage.meshes[self.placed.name].diagonal
-        metrics = record.metrics(self._gt_samples, tau_fraction * diagonal)
+        # Dense ground truth: precision is only meaningful with samples much closer than τ.
+        surface, _ = surface_samples(self._stage.meshes[self.placed.name], METRIC_SAMPLES, 0)
+        gt_world = self.placed.to_world(self.placed.scale * surface)
+        metrics = record.metrics(gt_world, tau_fraction * diagonal)
         if save_dir is not None:
             record.save(save_dir)
         return record, metrics
@@ -457,7 +471,9 @@ class ViewPlanningEnv(gym.Env):
         if not self._episode_ready:
             raise RuntimeError("call reset() before preview_view()")
         eye = sphere_point(self.center, azimuth, elevation, radius)
-        ik = self.arm.solve_ik(eye, look_at(eye, self.center), roll_free=True)
+        ik = self.arm.solve_ik(
+            eye, look_at(eye, self.center), roll_free=True, restarts=VIEW_IK_RESTARTS
+        )
         plan = self.arm.plan_path(ik.qpos) if ik.success else None
         if plan is None:
             return {
@@ -473,11 +489,21 @@ class ViewPlanningEnv(gym.Env):
         depth = self.camera.render(self.data, rng=rng)
         points = crop_points(self.camera.points_world(depth, self.data), *self._crop)
         self.arm.set_qpos(start)
-        gain = self.coverage.preview(points)
+        gain = self.coverage.preview(self.placed.to_object(points))
         reward = self.coverage_reward_scale * gain - self.motion_cost * plan.length
         return {"reachable": True, "gain": gain, "path_length": plan.length, "reward": reward}
 
     # ------------------------------------------------------------------ internals
+    def _tracker(self, name: str, scale: float) -> CoverageTracker:
+        key = (name, scale)
+        if key not in self._trackers:
+            truth = self._ground_truth[key]
+            epsilon = self.epsilon_fraction * scale * self._stage.meshes[name].diagonal
+            self._trackers[key] = CoverageTracker(
+                truth.points, epsilon, observable=truth.observable
+            )
+        return self._trackers[key]
+
     def view_to_action(self, azimuth: float, elevation: float, radius: float) -> np.ndarray:
         """The continuous action that requests view (azimuth, elevation in rad, radius in m)."""
         azimuth = (azimuth - self.azimuth_range[0]) % (2 * np.pi) + self.azimuth_range[0]

@@ -40,6 +40,10 @@ class PlacedObject:
         """Points in the placed variant's own frame (already at its scale) to the world."""
         return np.asarray(points_object) @ self.rotation.T + self.position
 
+    def to_object(self, points_world: np.ndarray) -> np.ndarray:
+        """World-frame points to the placed variant's own frame (inverse of :meth:`to_world`)."""
+        return (np.asarray(points_world) - self.position) @ self.rotation
+
 
 class ObjectStage:
     """Every (object, scale) variant as a hidden mocap body; one of them shown at a time.

@@ -1,0 +1,95 @@
+"""Throughput and memory of ViewPlanning-v0 per depth backend, motion mode and resolution.
+
+Run: ``MUJOCO_GL=egl python -m benchmarks.view_planning [--steps 600 --repeats 3]``.
+Each configuration runs in a fresh process (one core's worth of work: a single env), taking
+uniformly random actions with resets included, after a warm-up episode. Prints a Markdown
+table: env steps/s (median, min and max over repeats) and the process's peak resident memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+CONFIGS = [
+    ("raycast", "kinematic", 64),
+    ("gl", "kinematic", 64),
+    ("raycast", "dynamic", 64),
+    ("gl", "dynamic", 64),
+    ("raycast", "kinematic", 128),
+    ("gl", "kinematic", 128),
+]
+
+
+def measure(backend: str, motion: str, resolution: int, steps: int, repeats: int) -> dict:
+    from liuxing_envs.envs.view_planning import ViewPlanningEnv
+
+    env = ViewPlanningEnv(depth_backend=backend, motion=motion, resolution=resolution)
+    env.action_space.seed(0)
+    env.reset(seed=0)  # seeds the episode stream; each run() starts with a fresh episode
+
+    def run(count: int) -> float:
+        done, start = True, time.perf_counter()
+        for _ in range(count):
+            if done:
+                env.reset()
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            done = terminated or truncated
+        return count / (time.perf_counter() - start)
+
+    run(env.view_budget)  # warm-up
+    rates = sorted(run(steps) for _ in range(repeats))
+    env.close()
+    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"median": rates[len(rates) // 2], "min": rates[0], "max": rates[-1], "mib": peak_mib}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=600)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--one", nargs=3, metavar=("BACKEND", "MOTION", "RESOLUTION"))
+    args = parser.parse_args()
+    if args.one:
+        backend, motion, resolution = args.one
+        print(json.dumps(measure(backend, motion, int(resolution), args.steps, args.repeats)))
+        return
+    print(f"ViewPlanning-v0 defaults, random actions, {args.steps} steps x {args.repeats}\n")
+    print("| backend | motion | depth | steps/s median | min | max | peak RSS MiB |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for backend, motion, resolution in CONFIGS:
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "benchmarks.view_planning",
+                "--steps",
+                str(args.steps),
+                "--repeats",
+                str(args.repeats),
+                "--one",
+                backend,
+                motion,
+                str(resolution),
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+        r = json.loads(out.strip().splitlines()[-1])
+        print(
+            f"| {backend} | {motion} | {resolution}x{resolution} | {r['median']:.0f} | "
+            f"{r['min']:.0f} | {r['max']:.0f} | {r['mib']:.0f} |",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
