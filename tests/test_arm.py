@@ -81,10 +81,33 @@ def test_ik_respects_narrowed_joint_limits():
 
 def test_unreachable_pose_is_reported_after_every_restart(sim):
     _, _, arm = sim
-    result = arm.solve_ik([2.0, 0.0, 0.5], np.eye(3), restarts=5)
+    result = arm.solve_ik([2.0, 0.0, 0.5], np.eye(3), restarts=5, method="dls")
     assert not result.success
     assert result.attempts == 7  # current, home, then five random seeds
     assert result.position_error > 0.5
+    analytic = arm.solve_ik([2.0, 0.0, 0.5], np.eye(3), method="analytic")
+    assert not analytic.success and analytic.attempts == 0  # no closed-form solution exists
+
+
+def test_analytic_and_dls_ik_agree_on_reach_and_accuracy(sim):
+    model, _, arm = sim
+    outcomes = {}
+    for method in ("analytic", "dls"):
+        reached = []
+        for eye, rotation in hemisphere_views()[::3]:
+            result = arm.solve_ik(eye, rotation, method=method)
+            reached.append(result.success)
+            if result.success:
+                position, actual = independent_site_pose(model, result.qpos)
+                assert np.linalg.norm(position - eye) < 2e-3
+                assert rotation_angle(actual, rotation) < np.deg2rad(1.0)
+        outcomes[method] = np.array(reached)
+    assert outcomes["analytic"].mean() >= 0.8
+    assert np.mean(outcomes["analytic"] == outcomes["dls"]) >= 0.9
+    with pytest.raises(ValueError, match="unknown IK method"):
+        arm.solve_ik([0.5, 0.0, 0.3], np.eye(3), method="newton")
+    with pytest.raises(ValueError, match="analytic IK needs a target rotation"):
+        arm.solve_ik([0.5, 0.0, 0.3], method="analytic")
 
 
 def test_roll_free_ik_aligns_only_the_optical_axis(sim):

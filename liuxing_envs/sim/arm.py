@@ -30,11 +30,17 @@ from liuxing_envs.sim.scene import (
     ARM_ACTUATOR_NAMES,
     ARM_BASE_BODY,
     ARM_JOINT_NAMES,
+    FLANGE_SITE,
     HOME_QPOS,
+    LAST_LINK_BODY,
     WRIST_CAMERA_SITE,
 )
+from liuxing_envs.sim.ur_ik import ur_ik
 
 MOTION_MODES = ("kinematic", "dynamic")
+IK_METHODS = ("auto", "analytic", "dls")
+#: Rolls about the site's z axis tried by the analytic IK when the roll is free (every 15 deg).
+IK_ROLL_SAMPLES = 24
 
 IK_POSITION_TOLERANCE = 5e-4  # m
 IK_ROTATION_TOLERANCE = np.deg2rad(0.25)  # rad
@@ -183,6 +189,11 @@ class Arm:
         arm_bodies = _subtree(model, base_id)
         self._is_arm_geom = np.isin(model.geom_bodyid, arm_bodies)
         self._site_ids: dict[str, int] = {}
+        self._flange_in_site: dict[int, np.ndarray | None] = {}
+        last_link = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, LAST_LINK_BODY)
+        self._last_link_bodies = set(_subtree(model, last_link).tolist())
+        d = self._pose_scratch(HOME_QPOS)
+        self._base_inverse = np.linalg.inv(_homogeneous(d.xpos[base_id], d.xmat[base_id]))
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
 
@@ -271,8 +282,17 @@ class Arm:
         position_tolerance: float = IK_POSITION_TOLERANCE,
         rotation_tolerance: float = IK_ROTATION_TOLERANCE,
         max_iterations: int = IK_MAX_ITERATIONS,
+        method: str = "auto",
     ) -> IKResult:
-        """Damped-least-squares IK of ``site`` to a world pose, within the joint limits.
+        """IK of ``site`` to a world pose, within the joint limits, collision-free.
+
+        Two solvers: ``"analytic"``, the UR5e's closed form (:mod:`liuxing_envs.sim.ur_ik`),
+        for sites fixed to the last link with a target rotation: every one of the up to eight
+        solutions (per sampled roll when ``roll_free``, every ``360 / IK_ROLL_SAMPLES``
+        degrees) is tried in order of joint distance from the reference configuration, so
+        the answer is exact and "unreachable" means no solution exists (up to the roll
+        sampling); ``"dls"``, damped least squares from several seeds, for any site and for
+        position-only targets. ``"auto"`` picks analytic where it applies.
 
         Parameters
         ----------
@@ -288,6 +308,8 @@ class Arm:
             ``restarts`` random configurations from a generator seeded with ``ik_seed``.
         check_collisions:
             Reject solutions in which the arm touches itself or the world.
+        method:
+            ``"auto"``, ``"analytic"`` or ``"dls"`` (see above).
         """
         target_p = _as_vector3(position, "position")
         target_r = None if rotation is None else _as_rotation(rotation)
@@ -295,8 +317,19 @@ class Arm:
             raise ValueError("roll_free=True needs a rotation whose z axis to align")
         if restarts < 0:
             raise ValueError(f"restarts must be >= 0, got {restarts}")
+        if method not in IK_METHODS:
+            raise ValueError(f"unknown IK method {method!r}; allowed: {IK_METHODS}")
         sid = self.site_id(site)
         reference = self.qpos if seed_qpos is None else np.asarray(seed_qpos, dtype=float)
+        analytic_ok = target_r is not None and self._flange_from_site(sid) is not None
+        if method == "analytic" and not analytic_ok:
+            raise ValueError(
+                "the analytic IK needs a target rotation and a site fixed to the last link"
+            )
+        if method != "dls" and analytic_ok:
+            return self._solve_analytic(
+                target_p, target_r, sid, roll_free, reference, check_collisions
+            )
         rng = np.random.default_rng(self.ik_seed)
         seeds = [reference, HOME_QPOS]
         sample_lo, sample_hi = np.maximum(self.lower, -np.pi), np.minimum(self.upper, np.pi)
@@ -341,6 +374,60 @@ class Arm:
             total_iterations,
             len(seeds),
             best.in_collision,
+        )
+
+    def _flange_from_site(self, sid: int) -> np.ndarray | None:
+        """Pose of the flange in the frame of site ``sid`` if the site is rigidly attached to
+        the last link (else None), computed once per site."""
+        if sid not in self._flange_in_site:
+            if self.model.site_bodyid[sid] not in self._last_link_bodies:
+                self._flange_in_site[sid] = None
+            else:
+                d = self._pose_scratch(HOME_QPOS)
+                world_site = _homogeneous(d.site_xpos[sid], d.site_xmat[sid])
+                fid = self.site_id(FLANGE_SITE)
+                world_flange = _homogeneous(d.site_xpos[fid], d.site_xmat[fid])
+                self._flange_in_site[sid] = np.linalg.inv(world_site) @ world_flange
+        return self._flange_in_site[sid]
+
+    def _solve_analytic(self, target_p, target_r, sid, roll_free, reference, check_collisions):
+        rolls = np.linspace(0, 2 * np.pi, IK_ROLL_SAMPLES, endpoint=False) if roll_free else [0.0]
+        site_poses = np.repeat(_homogeneous(target_p, target_r)[None], len(rolls), axis=0)
+        c, s = np.cos(rolls), np.sin(rolls)
+        roll = np.zeros((len(rolls), 3, 3))
+        roll[:, 0, 0], roll[:, 0, 1], roll[:, 1, 0], roll[:, 1, 1], roll[:, 2, 2] = c, -s, s, c, 1
+        site_poses[:, :3, :3] = target_r @ roll  # turning about the site's own z keeps z
+        flange_in_base = self._base_inverse @ site_poses @ self._flange_from_site(sid)
+        solutions, valid = ur_ik(flange_in_base)
+        candidates = solutions[valid]
+        if len(candidates):
+            turns = np.round((reference - candidates) / (2 * np.pi))
+            shifted = candidates + 2 * np.pi * turns
+            inside = (shifted >= self.lower) & (shifted <= self.upper)
+            candidates = np.where(inside, shifted, candidates)
+            candidates = candidates[np.all(candidates >= self.lower, axis=1)]
+            candidates = candidates[np.all(candidates <= self.upper, axis=1)]
+        order = np.argsort(np.linalg.norm(candidates - reference, axis=1))
+        tried, colliding = 0, None
+        for index in order:
+            q = candidates[index]
+            tried += 1
+            if check_collisions and self.in_collision(q):
+                colliding = q if colliding is None else colliding
+                continue
+            return self._ik_result(True, q, sid, target_p, target_r, roll_free, tried, False)
+        if colliding is not None:
+            return self._ik_result(
+                False, colliding, sid, target_p, target_r, roll_free, tried, True
+            )
+        return IKResult(False, reference.copy(), np.inf, np.inf, 0, tried, False)
+
+    def _ik_result(self, success, q, sid, target_p, target_r, roll_free, attempts, colliding):
+        d = self._pose_scratch(q)
+        pos_err = float(np.linalg.norm(target_p - d.site_xpos[sid]))
+        rotvec = _rotation_error(d.site_xmat[sid].reshape(3, 3), target_r, roll_free)
+        return IKResult(
+            success, q.copy(), pos_err, float(np.linalg.norm(rotvec)), 0, attempts, colliding
         )
 
     def _dls(self, seed, sid, target_p, target_r, roll_free, pos_tol, rot_tol, max_iterations):
@@ -548,6 +635,13 @@ class Arm:
         count = max(1, int(np.ceil(sweep / self.path_check_step)))
         fractions = np.arange(1, count + 1)[:, None] / count
         return q_from + fractions * (q_to - q_from)
+
+
+def _homogeneous(position, rotation) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, :3] = np.asarray(rotation).reshape(3, 3)
+    pose[:3, 3] = position
+    return pose
 
 
 def _smoothstep(s: float) -> float:

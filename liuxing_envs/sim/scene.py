@@ -38,6 +38,8 @@ ARM_BODY_NAMES = (
     "wrist_camera",
 )
 ARM_BASE_BODY = "base"
+#: The link the flange belongs to; sites in its subtree move rigidly with the flange.
+LAST_LINK_BODY = "wrist_3_link"
 FLANGE_SITE = "flange"
 WRIST_CAMERA = "wrist_depth"
 WRIST_CAMERA_SITE = "wrist_depth_optical"
