@@ -11,7 +11,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
-from liuxing_envs.envs.view_planning import ViewPlanningEnv
+from liuxing_envs.envs.view_planning import DEFAULT_VIEW_BUDGET, ViewPlanningEnv
 
 ENV_ID = "ViewPlanning-v0"
 #: Small and fast settings shared by most tests (3 objects, one scale).
@@ -40,7 +40,7 @@ def run_episode(env, policy, seed):
 
 def test_registered_with_the_view_budget_as_episode_limit():
     spec = gym.spec(ENV_ID)
-    assert spec.max_episode_steps == 4
+    assert spec.max_episode_steps == DEFAULT_VIEW_BUDGET == 4
     env = gym.make("liuxing_envs:ViewPlanning-v0", **FAST)
     assert isinstance(env.unwrapped, ViewPlanningEnv)
     env.close()
