@@ -90,14 +90,17 @@ class Gripper:
         """Force each finger servo applies (N; negative = closing)."""
         return self.data.actuator_force[self._actuators].copy()
 
-    def contact_force_on(self, body_id: int) -> np.ndarray:
-        """Net contact force (N, world frame) that everything else exerts on ``body_id``."""
+    def contact_force_on(self, body_id: int, *, exclude_geoms=()) -> np.ndarray:
+        """Net contact force (N, world frame) that everything else exerts on ``body_id``,
+        leaving out contacts with any geom in ``exclude_geoms`` (e.g. the pads)."""
         total = np.zeros(3)
         d, m = self.data, self.model
         for i in range(d.ncon):
             contact = d.contact[i]
             b1, b2 = m.geom_bodyid[contact.geom1], m.geom_bodyid[contact.geom2]
             if body_id not in (b1, b2) or b1 == b2:
+                continue
+            if contact.geom1 in exclude_geoms or contact.geom2 in exclude_geoms:
                 continue
             mujoco.mj_contactForce(m, d, i, self._wrench)
             # The wrench is in the contact frame and acts on geom2's body (from geom1's).
