@@ -414,7 +414,8 @@ class Open3DVoxelMap(VoxelMap):
         return np.sort(self._active(self._map.key_tensor()).ravel())
 
     def counts(self) -> np.ndarray:
-        raise NotImplementedError("Open3DVoxelMap does not count points per voxel")
+        # A deliberate limit of this benchmark-only variant, not a missing piece.
+        raise TypeError("Open3DVoxelMap keeps no per-voxel point counts; use VoxelMap for them")
 
     def _active(self, tensor) -> np.ndarray:
         index = self._map.active_buf_indices().to(self._o3c.int64)
