@@ -11,6 +11,12 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from liuxing_envs.envs.validation import (
+    require_choice,
+    require_int,
+    require_number,
+    require_range,
+)
 from liuxing_envs.perception.coverage import CoverageTracker
 from liuxing_envs.perception.fusion import VoxelMap
 from liuxing_envs.perception.pointcloud import crop_points
@@ -201,22 +207,22 @@ class ViewPlanningEnv(gym.Env):
         privileged: bool = False,
         render_mode: str | None = None,
     ) -> None:
-        _require_int("view_budget", view_budget, 1, 64)
-        _require_choice("action_mode", action_mode, ACTION_MODES)
-        _require_choice("motion", motion, MOTION_MODES)
-        _require_choice("object_set", object_set, OBJECT_SET_NAMES)
-        _require_choice("depth_backend", depth_backend, BACKENDS)
-        _require_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
-        _require_int("resolution", resolution, 8, 512)
-        _require_int("coverage_samples", coverage_samples, 256, 200_000)
-        _require_int("map_grid", map_grid, 4, 64)
+        require_int("view_budget", view_budget, 1, 64)
+        require_choice("action_mode", action_mode, ACTION_MODES)
+        require_choice("motion", motion, MOTION_MODES)
+        require_choice("object_set", object_set, OBJECT_SET_NAMES)
+        require_choice("depth_backend", depth_backend, BACKENDS)
+        require_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        require_int("resolution", resolution, 8, 512)
+        require_int("coverage_samples", coverage_samples, 256, 200_000)
+        require_int("map_grid", map_grid, 4, 64)
         self.azimuth_range = np.deg2rad(
-            _require_range("azimuth_range_deg", azimuth_range_deg, -360, 360)
+            require_range("azimuth_range_deg", azimuth_range_deg, -360, 360)
         )
         self.elevation_range = np.deg2rad(
-            _require_range("elevation_range_deg", elevation_range_deg, 5.0, 90.0)
+            require_range("elevation_range_deg", elevation_range_deg, 5.0, 90.0)
         )
-        self.radius_range = np.asarray(_require_range("radius_range", radius_range, 0.15, 0.8))
+        self.radius_range = np.asarray(require_range("radius_range", radius_range, 0.15, 0.8))
         for name, value, low, high in (
             ("epsilon_fraction", epsilon_fraction, 1e-4, 0.2),
             ("success_coverage", success_coverage, 0.0, 1.0),
@@ -229,7 +235,7 @@ class ViewPlanningEnv(gym.Env):
             ("table_crop_height", table_crop_height, 0.0, 0.05),
             ("discrete_radius", discrete_radius, 0.15, 0.8),
         ):
-            _require_number(name, value, low, high)
+            require_number(name, value, low, high)
         region = np.asarray(object_region, dtype=float)
         if region.shape != (2, 2) or not np.all(region[0] <= region[1]):
             raise ValueError(
@@ -609,39 +615,6 @@ def _candidate_views(
     ]
     views.append((0.0, math.pi / 2, float(radius)))
     return tuple(views)
-
-
-def _require_choice(name: str, value, allowed) -> None:
-    if value not in allowed:
-        raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(allowed)}")
-
-
-def _require_int(name: str, value, low: int, high: int) -> None:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, np.integer))
-        or not low <= value <= high
-    ):
-        raise ValueError(f"{name} must be an integer in [{low}, {high}], got {value!r}")
-
-
-def _require_number(name: str, value, low: float, high: float) -> None:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float, np.number))
-        or not (math.isfinite(value) and low <= value <= high)
-    ):
-        raise ValueError(f"{name} must be a number in [{low}, {high}], got {value!r}")
-
-
-def _require_range(name: str, value, low: float, high: float) -> tuple[float, float]:
-    try:
-        first, second = (float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a pair (min, max), got {value!r}") from None
-    if not (low <= first <= second <= high):
-        raise ValueError(f"{name} must satisfy {low} <= min <= max <= {high}, got {value!r}")
-    return first, second
 
 
 def _add_points(scene: mujoco.MjvScene, points: np.ndarray, limit: int) -> None:
