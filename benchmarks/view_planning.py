@@ -11,12 +11,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
-import subprocess
-import sys
 import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
+
+from benchmarks.isolated import peak_rss_mib, run_in_fresh_process  # noqa: E402
 
 CONFIGS = [
     ("raycast", "kinematic", 64),
@@ -47,8 +46,12 @@ def measure(backend: str, motion: str, resolution: int, steps: int, repeats: int
     run(env.view_budget)  # warm-up
     rates = sorted(run(steps) for _ in range(repeats))
     env.close()
-    peak_mib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    return {"median": rates[len(rates) // 2], "min": rates[0], "max": rates[-1], "mib": peak_mib}
+    return {
+        "median": rates[len(rates) // 2],
+        "min": rates[0],
+        "max": rates[-1],
+        "mib": peak_rss_mib(),
+    }
 
 
 def main() -> None:
@@ -65,25 +68,11 @@ def main() -> None:
     print("| backend | motion | depth | steps/s median | min | max | peak RSS MiB |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for backend, motion, resolution in CONFIGS:
-        out = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "benchmarks.view_planning",
-                "--steps",
-                str(args.steps),
-                "--repeats",
-                str(args.repeats),
-                "--one",
-                backend,
-                motion,
-                str(resolution),
-            ],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout
-        r = json.loads(out.strip().splitlines()[-1])
+        r = run_in_fresh_process(
+            "benchmarks.view_planning",
+            *("--steps", str(args.steps), "--repeats", str(args.repeats)),
+            *("--one", backend, motion, str(resolution)),
+        )
         print(
             f"| {backend} | {motion} | {resolution}x{resolution} | {r['median']:.0f} | "
             f"{r['min']:.0f} | {r['max']:.0f} | {r['mib']:.0f} |",

@@ -9,9 +9,12 @@ import gymnasium as gym
 
 __version__ = "0.1.0"
 
-VIEW_PLANNING_BUDGET = 4  # = envs.view_planning.DEFAULT_VIEW_BUDGET, kept import-free here
+# Kept import-free here: = envs.view_planning.DEFAULT_VIEW_BUDGET and
+# envs.instrument_grasp.DEFAULT_MAX_EPISODE_STEPS.
+VIEW_PLANNING_BUDGET = 4
+INSTRUMENT_GRASP_STEPS = 200
 
-ENV_IDS = ("ViewPlanning-v0",)
+ENV_IDS = ("ViewPlanning-v0", "InstrumentGrasp-v0")
 
 if "ViewPlanning-v0" not in gym.registry:
     # The env truncates itself after view_budget views; the TimeLimit matches the default
@@ -20,4 +23,11 @@ if "ViewPlanning-v0" not in gym.registry:
         id="ViewPlanning-v0",
         entry_point="liuxing_envs.envs.view_planning:ViewPlanningEnv",
         max_episode_steps=VIEW_PLANNING_BUDGET,
+    )
+
+if "InstrumentGrasp-v0" not in gym.registry:
+    gym.register(
+        id="InstrumentGrasp-v0",
+        entry_point="liuxing_envs.envs.instrument_grasp:InstrumentGraspEnv",
+        max_episode_steps=INSTRUMENT_GRASP_STEPS,
     )

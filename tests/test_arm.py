@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from liuxing_envs.sim.arm import Arm, JointPath
+from liuxing_envs.sim.kinematics import flange_pose_in_base
 from liuxing_envs.sim.scene import HOME_QPOS, WRIST_CAMERA_SITE, load_scene_model, reset_to_home
+from liuxing_envs.sim.ur_ik import ur_ik
 from liuxing_envs.sim.viewpoints import look_at, sphere_viewpoint, view_grid
 
 TABLE_POINT = np.array([0.5, 0.0, 0.0])  # on the table, in front of the arm
@@ -248,3 +250,18 @@ def test_no_plan_into_the_table_and_paths_must_start_where_the_arm_is(sim):
     stale = JointPath(HOME_QPOS + 0.1, (HOME_QPOS,))
     with pytest.raises(ValueError, match="does not start at the arm's current configuration"):
         arm.follow(stale)
+
+
+def test_closed_form_ik_recovers_random_configurations():
+    """Every valid closed-form solution reproduces the flange pose, and one of the eight is
+    the configuration the pose came from (up to whole turns)."""
+    rng = np.random.default_rng(7)
+    configurations = rng.uniform(-np.pi, np.pi, (100, 6))
+    poses = np.stack([flange_pose_in_base(q) for q in configurations])
+    solutions, valid = ur_ik(poses)
+    assert valid.sum(axis=1).min() >= 2
+    for q, pose, candidates, ok in zip(configurations, poses, solutions, valid, strict=True):
+        for candidate in candidates[ok]:
+            np.testing.assert_allclose(flange_pose_in_base(candidate), pose, atol=1e-8)
+        wrapped = np.angle(np.exp(1j * (candidates[ok] - q)))
+        assert np.abs(wrapped).max(axis=1).min() < 1e-6

@@ -199,6 +199,11 @@ class Arm:
 
     # ------------------------------------------------------------------ state
     @property
+    def qpos_indices(self) -> np.ndarray:
+        """Addresses of the six arm joints in ``qpos``."""
+        return self._qpos_idx.copy()
+
+    @property
     def qpos(self) -> np.ndarray:
         """Current joint angles of the arm (rad), a copy."""
         return self.data.qpos[self._qpos_idx].copy()

@@ -107,6 +107,7 @@ DEFAULT_TRAY_CENTER = (0.5, 0.0)
 DEFAULT_TRAY_SIZE = (0.30, 0.40)
 DEFAULT_TRAY_FLOOR_THICKNESS = 0.004
 #: Height of the rim's top above the table (m) and the rim's wall thickness (m).
+TRAY_FLOOR_BURY = 0.02  # m
 DEFAULT_TRAY_RIM_HEIGHT = 0.01
 DEFAULT_TRAY_RIM_THICKNESS = 0.005
 #: Stainless steel on stainless steel, dry: 0.3-0.5.
@@ -783,8 +784,15 @@ def add_tray(
     )
     box = mujoco.mjtGeom.mjGEOM_BOX
     floor_name = f"{name_prefix}floor"
-    half_t = 0.5 * floor_thickness
-    body.add_geom(name=floor_name, type=box, size=[half_x, half_y, half_t], pos=[0, 0, half_t])
+    # The floor's collision box reaches TRAY_FLOOR_BURY down into the table (static geoms do
+    # not collide with each other), so nothing pressed hard onto a thin tray pops through it.
+    half_t = 0.5 * (floor_thickness + TRAY_FLOOR_BURY)
+    body.add_geom(
+        name=floor_name,
+        type=box,
+        size=[half_x, half_y, half_t],
+        pos=[0, 0, floor_thickness - half_t],
+    )
     names = [floor_name]
     has_rim = rim_height > floor_thickness
     if has_rim:

@@ -1,0 +1,684 @@
+"""InstrumentGrasp-v0: gentle, force-limited grasp and lift of a surgical instrument."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+
+from liuxing_envs.envs.validation import (
+    require_choice,
+    require_int,
+    require_number,
+    require_range,
+)
+from liuxing_envs.sim.arm import Arm
+from liuxing_envs.sim.camera import CameraIntrinsics, DepthCamera
+from liuxing_envs.sim.gripper import MAX_OPENING, TCP_SITE, Gripper, attach_gripper
+from liuxing_envs.sim.instruments import (
+    INSTRUMENT_SETS,
+    add_instrument,
+    add_tray,
+    get_instrument,
+)
+from liuxing_envs.sim.scene import (
+    HOME_QPOS,
+    OVERVIEW_CAMERA,
+    WRIST_CAMERA,
+    load_scene_spec,
+    reset_to_home,
+)
+
+OBS_MODES = ("state", "depth", "rgbd")
+CONTROLLERS = ("ee_delta", "joint_delta")
+INSTRUMENT_SET_NAMES = ("train", "held_out", "all")
+
+DEFAULT_CONTROL_HZ = 20.0
+DEFAULT_TIMESTEP = 0.002  # s
+DEFAULT_MAX_EPISODE_STEPS = 200  # 10 s at 20 Hz
+DEFAULT_FORCE_LIMIT = 5.0  # N per fingertip
+DEFAULT_HARD_LIMIT_FACTOR = 3.0
+DEFAULT_IMPACT_LIMIT = 10.0  # N, contact force on the instrument from anything but the pads
+DEFAULT_TARGET_HEIGHT = 0.10  # m of lift
+DEFAULT_HOLD_TIME = 1.0  # s
+DEFAULT_FORCE_PENALTY = 0.2  # reward per newton above the limit, per pad
+DEFAULT_IMPACT_PENALTY = 0.05  # reward per newton above the impact limit
+DEFAULT_FAILURE_PENALTY = 5.0
+#: The most the reach, grasp, lift and hold terms pay in one step.
+MAX_STEP_REWARD = 5.0
+DEFAULT_MAX_TRANSLATION = 0.02  # m per control step at |action| = 1
+DEFAULT_MAX_YAW = 0.2  # rad per control step
+DEFAULT_MAX_JOINT_DELTA = 0.05  # rad per control step
+DEFAULT_RESOLUTION = 64
+#: Allowed factors of mass_range and friction_range.
+SCALE_LIMITS = (0.1, 10.0)
+#: Depth observations are uint8 (what SB3's CNNs take): level 0 = no return, levels 1-255
+#: span this z-depth range linearly (about 2 mm per level); farther saturates at 255.
+DEPTH_RANGE = (0.1, 0.6)  # m
+#: A pad "holds" the instrument when it presses on it with at least this force (ManiSkill).
+GRASP_FORCE_THRESHOLD = 0.5  # N
+#: Forces are sampled every this many physics steps (10 ms at the default timestep).
+FORCE_SAMPLE_SUBSTEPS = 5
+#: Where the tool centre may go (a controller's workspace limit): over the inside of the tray,
+#: up to TCP_MAX_HEIGHT (m), and no lower than FLOOR_CLEARANCE above the tray floor (m): the
+#: fingertips are 4 mm below the tool centre, so they stop 1 mm short of it.
+TCP_MAX_HEIGHT = 0.40
+FLOOR_CLEARANCE = 0.005
+#: Ready pose: the wrist camera (70 mm off the tool axis, on its -y side) looks straight
+#: down from 0.45 m above the tray. The open fingers hide the image's top third (world +y), so
+#: the camera sits 5 cm to +y of the tray centre to see every placement.
+READY_TCP = np.array([0.5, 0.12, 0.305])
+READY_OPENING = 0.06
+#: Region (x, y) of the instrument's grasp point on the tray at reset, metres.
+PLACEMENT_REGION = ((0.44, -0.08), (0.56, 0.08))
+#: Placements are redrawn until the whole instrument lies this far inside the tray's rim.
+TRAY_MARGIN = 0.01  # m
+PLACEMENT_TRIES = 100
+SETTLE_STEPS = 50
+FORCE_COLOUR_RANGE = 15.0  # N shown as full red on the pads in render()
+
+
+def tool_down(yaw: float) -> np.ndarray:
+    """Rotation of the tool frame pointing straight down, turned by ``yaw`` about world z."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
+
+
+class InstrumentGraspEnv(gym.Env):
+    """Pick a surgical instrument off a tray without squeezing or striking it too hard.
+
+    The arm (UR5e kinematics) carries a parallel-jaw gripper with touch-sensing pads and the
+    wrist depth/RGB camera. One instrument lies on a tray in front of it. The grasp is by
+    friction only (elliptic cones, noslip iterations); nothing welds the instrument.
+
+    **Action** ``Box(-1, 1)``, float32; out-of-range values are clipped, NaN/inf raise
+    ``ValueError``.
+
+    ===  =====================  ===============================================================
+    idx  ``controller``         meaning
+    ===  =====================  ===============================================================
+    0-2  ``"ee_delta"``         tool-centre displacement x, y, z from where it is now (up to
+                                ``max_translation`` m per step each, world frame)
+    3    ``"ee_delta"``         yaw change about world z (up to ``max_yaw`` rad per step)
+    0-5  ``"joint_delta"``      arm joint set-point changes (up to ``max_joint_delta`` rad)
+    -1   both                   gripper: the pad opening to servo to, 0 m at -1 (closed) to
+                                0.08 m at +1 (each finger servo is limited to 40 N)
+    ===  =====================  ===============================================================
+
+    With ``ee_delta`` (default) the tool stays pointing down; the target is clipped to the
+    workspace above the tray (the fingertips stop 1 mm above its floor) and solved with the
+    arm's closed-form IK; a target it cannot reach leaves the arm's set-point unchanged.
+    Control runs at ``control_hz`` over physics steps of ``timestep`` seconds.
+
+    **Observation** ``Dict`` (float32 unless noted), for SB3's ``MultiInputPolicy``:
+
+    ==============  ==========  =============================================================
+    key             shape       content
+    ==============  ==========  =============================================================
+    ``proprio``     (19,)       arm joint angles (6, rad), joint velocities (6, rad/s),
+                                tool-centre position (3, m), cos and sin of the tool yaw (2),
+                                pad opening and commanded opening (2, m)
+    ``forces``      (2,)        left and right fingertip normal force (N): the pads' touch
+                                sensors, i.e. every contact on a pad (instrument, tray, ...)
+    ``instrument``  (9,)        ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
+                                (3, m), handle axis (3), instrument linear velocity (3, m/s)
+    ``depth``       (1, H, W)   ``"depth"`` and ``"rgbd"``: wrist z-depth, uint8 levels (see
+                                :meth:`decode_depth`: 0 = no return, 1-255 span 0.1-0.6 m)
+    ``rgb``         (3, H, W)   ``"rgbd"`` only: wrist colour image, uint8, channel-first
+    ==============  ==========  =============================================================
+
+    **Reward**: the sum of these terms, each in ``info``:
+
+    - ``reward_reach`` = 1 - tanh(10 d), d = distance tool centre to grasp point (m);
+    - ``reward_grasp`` = 1 while both pads touch the instrument with >= 0.5 N each;
+    - ``reward_lift`` = 2 min(1, lift / ``target_height``) while grasped;
+    - ``reward_hold`` = 1 while grasped at the target height;
+    - ``reward_force`` = -``force_penalty`` sum_pads max(0, peak pad force - ``force_limit``);
+    - ``reward_impact`` = -``impact_penalty`` max(0, peak impact - ``impact_limit``), the
+      impact being the net contact force on the instrument from anything but the pads, less
+      its weight;
+    - ``reward_failure`` = -``failure_penalty`` when a pad force exceeds
+      ``hard_limit_factor`` x ``force_limit``: the episode ends (terminated);
+    - ``reward_success`` = 5 per step left when the episode ends in success (only with
+      ``terminate_on_success``), what holding on until the time limit would have paid.
+
+    Peaks are over the control step, sampled every 10 ms of physics.
+
+    **Success** (``info["is_success"]``): the instrument has been lifted by ``target_height``
+    and held there, grasped, for ``hold_time`` s, and the episode's peak fingertip force has
+    never been above ``force_limit``. It ends the episode only with ``terminate_on_success``.
+    ``info`` also carries ``peak_force`` (episode, N), ``step_peak_force``, ``grip_force``
+    (now), ``lift_height`` (m), ``force_violations`` (control steps above the limit),
+    ``impact_violations``, ``hard_limit_exceeded``, ``grasped`` and ``instrument``.
+
+    **Episode**: a random instrument of ``instrument_set`` (or of ``instruments``; one
+    compiled model each), level on the tray at a random position and yaw (redrawn until it
+    lies 1 cm inside the rim), optionally with its mass and friction scaled by factors drawn
+    from ``mass_range`` / ``friction_range``. The arm starts in a ready pose with the wrist
+    camera 0.45 m above the tray and the gripper open 6 cm. ``reset(options=...)`` may fix
+    ``instrument``, ``position`` (grasp point x, y) and ``yaw``. Registered with a
+    TimeLimit of 200 steps (10 s; ``gym.make(..., max_episode_steps=N)`` changes it); the
+    environment itself never truncates.
+
+    **Arguments**: every keyword above, ``resolution`` (square image side, pixels),
+    ``depth_backend`` (``"gl"``, ``"raycast"`` or ``"auto"``) and ``render_mode``
+    (``"rgb_array"``: the overview camera, pads shaded white to red with their force).
+
+    **Version history.** v0: initial release.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(
+        self,
+        *,
+        obs_mode: str = "state",
+        controller: str = "ee_delta",
+        instrument_set: str = "train",
+        instruments: Sequence[str] | None = None,
+        control_hz: float = DEFAULT_CONTROL_HZ,
+        timestep: float = DEFAULT_TIMESTEP,
+        force_limit: float = DEFAULT_FORCE_LIMIT,
+        hard_limit_factor: float = DEFAULT_HARD_LIMIT_FACTOR,
+        impact_limit: float = DEFAULT_IMPACT_LIMIT,
+        target_height: float = DEFAULT_TARGET_HEIGHT,
+        hold_time: float = DEFAULT_HOLD_TIME,
+        force_penalty: float = DEFAULT_FORCE_PENALTY,
+        impact_penalty: float = DEFAULT_IMPACT_PENALTY,
+        failure_penalty: float = DEFAULT_FAILURE_PENALTY,
+        terminate_on_success: bool = False,
+        max_translation: float = DEFAULT_MAX_TRANSLATION,
+        max_yaw: float = DEFAULT_MAX_YAW,
+        max_joint_delta: float = DEFAULT_MAX_JOINT_DELTA,
+        mass_range: Sequence[float] | None = None,
+        friction_range: Sequence[float] | None = None,
+        resolution: int = DEFAULT_RESOLUTION,
+        depth_backend: str = "auto",
+        render_mode: str | None = None,
+    ) -> None:
+        require_choice("obs_mode", obs_mode, OBS_MODES)
+        require_choice("controller", controller, CONTROLLERS)
+        require_choice("instrument_set", instrument_set, INSTRUMENT_SET_NAMES)
+        require_choice("render_mode", render_mode, (None, "rgb_array"))
+        require_choice("terminate_on_success", terminate_on_success, (False, True))
+        for name, value, low, high in (
+            ("control_hz", control_hz, 1.0, 500.0),
+            ("timestep", timestep, 1e-4, 0.01),
+            ("force_limit", force_limit, 0.1, 100.0),
+            ("hard_limit_factor", hard_limit_factor, 1.0, 100.0),
+            ("impact_limit", impact_limit, 0.1, 1000.0),
+            ("target_height", target_height, 0.01, 0.2),
+            ("hold_time", hold_time, 0.0, 10.0),
+            ("force_penalty", force_penalty, 0.0, 100.0),
+            ("impact_penalty", impact_penalty, 0.0, 100.0),
+            ("failure_penalty", failure_penalty, 0.0, 1000.0),
+            ("max_translation", max_translation, 1e-4, 0.1),
+            ("max_yaw", max_yaw, 0.0, 1.0),
+            ("max_joint_delta", max_joint_delta, 1e-4, 0.5),
+        ):
+            require_number(name, value, low, high)
+        require_int("resolution", resolution, 8, 512)
+        substeps = round(1.0 / (control_hz * timestep))
+        if substeps < 1 or not math.isclose(substeps * timestep * control_hz, 1.0, rel_tol=1e-6):
+            raise ValueError(
+                f"1 / control_hz must be a whole number of timesteps; got control_hz="
+                f"{control_hz}, timestep={timestep}"
+            )
+        names = tuple(instruments) if instruments is not None else INSTRUMENT_SETS[instrument_set]
+        unknown = [n for n in names if n not in INSTRUMENT_SETS["all"]]
+        if not names or unknown:
+            raise ValueError(
+                f"instruments must be names from {INSTRUMENT_SETS['all']}, got {list(names)}"
+            )
+        self.mass_range = (
+            None if mass_range is None else require_range("mass_range", mass_range, *SCALE_LIMITS)
+        )
+        self.friction_range = (
+            None
+            if friction_range is None
+            else require_range("friction_range", friction_range, *SCALE_LIMITS)
+        )
+
+        self.obs_mode, self.controller, self.render_mode = obs_mode, controller, render_mode
+        self.instrument_names = names
+        self.substeps = substeps
+        self.force_limit, self.hard_limit = force_limit, force_limit * hard_limit_factor
+        self.impact_limit, self.target_height = impact_limit, target_height
+        self.hard_impact_limit = impact_limit * hard_limit_factor
+        self.hold_steps = round(hold_time * control_hz)
+        self.force_penalty, self.impact_penalty = force_penalty, impact_penalty
+        self.failure_penalty = failure_penalty
+        self.terminate_on_success = bool(terminate_on_success)
+        self.max_translation, self.max_yaw = max_translation, max_yaw
+        self.max_joint_delta = max_joint_delta
+        self.intrinsics = CameraIntrinsics(width=resolution, height=resolution)
+        self._depth_backend = depth_backend
+        self._worlds = {name: _World(name, timestep) for name in names}
+        self.world: _World = self._worlds[names[0]]
+
+        action_dim = 5 if controller == "ee_delta" else 7
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(action_dim,), dtype=np.float32)
+        obs = {
+            "proprio": spaces.Box(-np.inf, np.inf, (19,), dtype=np.float32),
+            "forces": spaces.Box(0.0, np.inf, (2,), dtype=np.float32),
+        }
+        if obs_mode == "state":
+            obs["instrument"] = spaces.Box(-np.inf, np.inf, (9,), dtype=np.float32)
+        else:
+            obs["depth"] = spaces.Box(0, 255, (1, resolution, resolution), dtype=np.uint8)
+        if obs_mode == "rgbd":
+            obs["rgb"] = spaces.Box(0, 255, (3, resolution, resolution), dtype=np.uint8)
+        self.observation_space = spaces.Dict(obs)
+        self._episode_ready = False
+        self._renderer: mujoco.Renderer | None = None
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - {"instrument", "position", "yaw"}
+        if unknown:
+            raise ValueError(
+                f"unknown reset option(s) {sorted(unknown)}; allowed: instrument, position, yaw"
+            )
+        rng = self.np_random
+        name = options.get(
+            "instrument", self.instrument_names[rng.integers(len(self.instrument_names))]
+        )
+        if name not in self._worlds:
+            raise ValueError(
+                f"reset option instrument={name!r} is not one of {self.instrument_names}"
+            )
+        world = self._worlds[name]
+        for _ in range(PLACEMENT_TRIES):
+            xy = np.asarray(options.get("position", rng.uniform(*PLACEMENT_REGION)), dtype=float)
+            yaw = float(options.get("yaw", rng.uniform(0.0, 2 * np.pi)))
+            if world.fits_on_tray(xy, yaw):
+                break
+        else:
+            raise ValueError(
+                f"{name} with its grasp point at {xy.tolist()} and yaw {yaw:.3f} rad does not "
+                f"lie inside the tray with {TRAY_MARGIN * 1000:.0f} mm to spare"
+            )
+        mass_scale = rng.uniform(*self.mass_range) if self.mass_range else 1.0
+        friction_scale = rng.uniform(*self.friction_range) if self.friction_range else 1.0
+        if self._renderer is not None and self.world.name != name:
+            self._renderer.close()
+            self._renderer = None
+        self.world = world
+        self.world.reset(xy, yaw, mass_scale, friction_scale)
+
+        self._steps = 0
+        self._hold_count = 0
+        self._held = False
+        self._peak_force = 0.0
+        self._force_violations = 0
+        self._impact_violations = 0
+        self._start_height = self.world.grasp_point()[2]
+        self._episode_ready = True
+        info = self._info(terms={}, grasped=False, pad_peak=np.zeros(2), success=False)
+        return self._observation(), info
+
+    def step(self, action):
+        if not self._episode_ready:
+            raise RuntimeError("call reset() before step(), and again after an episode ends")
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != self.action_space.shape:
+            raise ValueError(
+                f"action must have shape {self.action_space.shape}, got {action.shape}"
+            )
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be finite, got {action.tolist()}")
+        action = np.clip(action, -1.0, 1.0)
+        world = self.world
+        self._apply_arm_action(action[:-1])
+        world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
+
+        pad_peak, impact_peak = np.zeros(2), 0.0
+        physics_steps = 0
+        while physics_steps < self.substeps:
+            n = min(FORCE_SAMPLE_SUBSTEPS, self.substeps - physics_steps)
+            mujoco.mj_step(world.model, world.data, nstep=n)
+            physics_steps += n
+            pad_peak = np.maximum(pad_peak, world.gripper.fingertip_forces())
+            impact_peak = max(impact_peak, world.impact_force())
+            if pad_peak.max() > self.hard_limit or impact_peak > self.hard_impact_limit:
+                # Protective stop, as a real arm's force monitor does: hold the arm and the
+                # fingers where they are and end the step (and the episode) here.
+                world.set_arm_ctrl(world.arm.qpos)
+                world.gripper.command(world.gripper.opening())
+                mujoco.mj_step(world.model, world.data, nstep=FORCE_SAMPLE_SUBSTEPS)
+                break
+        self._steps += 1
+
+        grasped = world.grasped()
+        lift = world.grasp_point()[2] - self._start_height
+        at_height = grasped and lift >= self.target_height
+        self._hold_count = self._hold_count + 1 if at_height else 0
+        step_peak = float(pad_peak.max())
+        self._peak_force = max(self._peak_force, step_peak)
+        self._force_violations += step_peak > self.force_limit
+        self._impact_violations += impact_peak > self.impact_limit
+        broke_limit = step_peak > self.hard_limit or impact_peak > self.hard_impact_limit
+        self._held = self._held or self._hold_count >= self.hold_steps
+        success = self._held and self._peak_force <= self.force_limit
+        ends_in_success = success and self.terminate_on_success
+
+        distance = np.linalg.norm(world.tcp_position() - world.grasp_point())
+        terms = {
+            "reward_reach": 1.0 - math.tanh(10.0 * distance),
+            "reward_grasp": float(grasped),
+            "reward_lift": 2.0 * min(1.0, max(lift, 0.0) / self.target_height) if grasped else 0.0,
+            "reward_hold": float(at_height),
+            "reward_force": -self.force_penalty
+            * float(np.sum(np.maximum(pad_peak - self.force_limit, 0.0))),
+            "reward_impact": -self.impact_penalty * max(0.0, impact_peak - self.impact_limit),
+            "reward_failure": -self.failure_penalty if broke_limit else 0.0,
+            # Ending early must not pay less than holding on until the time limit would.
+            "reward_success": MAX_STEP_REWARD * max(0, self._time_limit() - self._steps)
+            if ends_in_success and not broke_limit
+            else 0.0,
+        }
+        reward = float(sum(terms.values()))
+        terminated = bool(broke_limit or ends_in_success)
+        truncated = False  # the TimeLimit wrapper's job, as in Gymnasium's MuJoCo envs
+        if terminated:
+            self._episode_ready = False
+        info = self._info(terms, grasped=grasped, pad_peak=pad_peak, success=success)
+        info["hard_limit_exceeded"] = bool(broke_limit)
+        return self._observation(), reward, terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        world = self.world
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(world.model, 480, 640)
+        # Pads shade from white to red with their force: the force read-out.
+        forces = world.gripper.fingertip_forces()
+        saved = world.model.geom_rgba[world.gripper.pad_geoms].copy()
+        level = np.clip(forces / FORCE_COLOUR_RANGE, 0.0, 1.0)[:, None]
+        world.model.geom_rgba[world.gripper.pad_geoms, :3] = (1 - level) * 0.92 + level * np.array(
+            [0.95, 0.05, 0.05]
+        )
+        self._renderer.update_scene(world.data, camera=OVERVIEW_CAMERA)
+        frame = self._renderer.render().copy()
+        world.model.geom_rgba[world.gripper.pad_geoms] = saved
+        return frame
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        for world in self._worlds.values():
+            world.close()
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_renderer"] = None
+        return state
+
+    @staticmethod
+    def encode_depth(depth_m: np.ndarray) -> np.ndarray:
+        """uint8 levels of a z-depth image in metres (see DEPTH_RANGE; 0 = no return)."""
+        near, far = DEPTH_RANGE
+        levels = 1.0 + np.round((np.clip(depth_m, near, far) - near) / (far - near) * 254.0)
+        return np.where(depth_m > 0, levels, 0.0).astype(np.uint8)
+
+    @staticmethod
+    def decode_depth(levels: np.ndarray) -> np.ndarray:
+        """z-depth in metres of the ``depth`` observation's levels (0 where no return)."""
+        near, far = DEPTH_RANGE
+        levels = np.asarray(levels, dtype=np.float64)
+        return np.where(levels > 0, near + (levels - 1.0) / 254.0 * (far - near), 0.0)
+
+    def wrist_camera_pose(self, arm_qpos=None) -> tuple[np.ndarray, np.ndarray]:
+        """Wrist camera position (m) and rotation (columns = camera x, y, z; it looks along
+        -z) in the world for the given arm joint angles (default: the current ones), from
+        the arm's kinematics: the calibration a real robot has, not privileged state."""
+        world = self.world
+        qpos = world.arm.qpos if arm_qpos is None else np.asarray(arm_qpos, dtype=float)
+        return world.wrist_camera_pose(qpos)
+
+    # ------------------------------------------------------------------ internals
+    def _time_limit(self) -> int:
+        """Episode length: the registered (or ``gym.make``-given) limit, else the default."""
+        if self.spec is not None and self.spec.max_episode_steps is not None:
+            return int(self.spec.max_episode_steps)
+        return DEFAULT_MAX_EPISODE_STEPS
+
+    def _apply_arm_action(self, arm_action: np.ndarray) -> None:
+        world = self.world
+        if self.controller == "joint_delta":
+            ctrl = world.arm_ctrl() + self.max_joint_delta * arm_action
+            world.set_arm_ctrl(np.clip(ctrl, world.arm.lower, world.arm.upper))
+            return
+        # Displacements are from the actual pose (not the last target), so a zero action holds
+        # the arm where it is and pushing against the tray cannot wind its servos up.
+        target = np.clip(
+            world.tcp_position() + self.max_translation * arm_action[:3],
+            world.workspace_lower,
+            world.workspace_upper,
+        )
+        yaw = world.tcp_yaw() + self.max_yaw * arm_action[3]
+        yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+        ik = world.arm.solve_ik(
+            target,
+            tool_down(yaw),
+            site=TCP_SITE,
+            check_collisions=False,
+            seed_qpos=world.arm_ctrl(),
+            method="analytic",
+        )
+        if ik.success:
+            world.set_arm_ctrl(ik.qpos)
+
+    def _observation(self) -> dict:
+        world = self.world
+        tcp = world.tcp_position()
+        yaw = world.tcp_yaw()
+        proprio = np.concatenate(
+            [
+                world.arm.qpos,
+                world.arm.qvel,
+                tcp,
+                [math.cos(yaw), math.sin(yaw)],
+                [world.gripper.opening(), world.gripper.commanded_opening()],
+            ]
+        )
+        obs = {
+            "proprio": proprio.astype(np.float32),
+            "forces": world.gripper.fingertip_forces().astype(np.float32),
+        }
+        if self.obs_mode == "state":
+            obs["instrument"] = np.concatenate(
+                [world.grasp_point(), world.grasp_axis(), world.instrument_velocity()]
+            ).astype(np.float32)
+        else:
+            depth = world.camera(self).render(world.data)
+            obs["depth"] = self.encode_depth(depth)[None]
+        if self.obs_mode == "rgbd":
+            obs["rgb"] = world.rgb(self.intrinsics).transpose(2, 0, 1).copy()
+        return obs
+
+    def _info(self, terms: dict, *, grasped: bool, pad_peak, success: bool) -> dict:
+        world = self.world
+        return {
+            **terms,
+            "is_success": bool(success),
+            "grasped": bool(grasped),
+            "peak_force": self._peak_force,
+            "step_peak_force": float(np.max(pad_peak)),
+            "grip_force": float(np.max(world.gripper.fingertip_forces())),
+            "lift_height": float(world.grasp_point()[2] - self._start_height),
+            "force_violations": self._force_violations,
+            "impact_violations": self._impact_violations,
+            "instrument": world.name,
+        }
+
+
+class _World:
+    """One compiled scene (arm, gripper, tray, one instrument) with its named queries."""
+
+    PREFIX = "instrument/"
+
+    def __init__(self, instrument: str, timestep: float) -> None:
+        spec = load_scene_spec()
+        attach_gripper(spec)
+        self.tray = add_tray(spec)
+        centre, half = np.asarray(self.tray.center), np.asarray(self.tray.inner_half_size)
+        self.workspace_lower = np.array([*(centre - half), self.tray.floor_z + FLOOR_CLEARANCE])
+        self.workspace_upper = np.array([*(centre + half), TCP_MAX_HEIGHT])
+        self.instrument = get_instrument(instrument)
+        add_instrument(spec, self.instrument, self.PREFIX)
+        spec.option.timestep = timestep
+        self.name = instrument
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        self.arm = Arm(self.model, self.data)
+        self.gripper = Gripper(self.model, self.data)
+        model = self.model
+        self.body = model.body(self.PREFIX + "body").id
+        self._joint_qpos = model.jnt_qposadr[model.joint(self.PREFIX + "joint").id]
+        self._joint_dof = model.jnt_dofadr[model.joint(self.PREFIX + "joint").id]
+        self._grasp_site = model.site(self.PREFIX + "grasp").id
+        self._tcp_site = model.site(TCP_SITE).id
+        self._geoms = np.flatnonzero(model.geom_bodyid == self.body)
+        self._nominal_mass = model.body_mass[self.body]
+        self._nominal_inertia = model.body_inertia[self.body].copy()
+        self._nominal_friction = model.geom_friction[self._geoms].copy()
+        self._arm_actuators = np.array(
+            [
+                model.actuator(n).id
+                for n in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
+            ]
+        )
+        self._camera_id = model.camera(WRIST_CAMERA).id
+        self._kinematics = mujoco.MjData(model)
+        self._camera: DepthCamera | None = None
+        self._rgb: mujoco.Renderer | None = None
+        grasp_local = model.site_pos[self._grasp_site].copy()
+        self._grasp_offset_xy = grasp_local[:2]
+
+    def reset(self, grasp_xy, yaw: float, mass_scale: float, friction_scale: float) -> None:
+        model, data = self.model, self.data
+        reset_to_home(model, data)
+        model.body_mass[self.body] = self._nominal_mass * mass_scale
+        model.body_inertia[self.body] = self._nominal_inertia * mass_scale
+        model.geom_friction[self._geoms, 0] = self._nominal_friction[:, 0] * friction_scale
+        # Put the grasp point at grasp_xy: the body origin is offset from it in the plane.
+        c, s = math.cos(yaw), math.sin(yaw)
+        offset = np.array(
+            [
+                c * self._grasp_offset_xy[0] - s * self._grasp_offset_xy[1],
+                s * self._grasp_offset_xy[0] + c * self._grasp_offset_xy[1],
+            ]
+        )
+        position = [*(np.asarray(grasp_xy) - offset), self.tray.floor_z]
+        data.qpos[self._joint_qpos : self._joint_qpos + 3] = position
+        data.qpos[self._joint_qpos + 3 : self._joint_qpos + 7] = [
+            math.cos(yaw / 2),
+            0.0,
+            0.0,
+            math.sin(yaw / 2),
+        ]
+        data.qvel[self._joint_dof : self._joint_dof + 6] = 0.0
+        ready = self.arm.solve_ik(
+            READY_TCP,
+            tool_down(0.0),
+            site=TCP_SITE,
+            seed_qpos=HOME_QPOS,
+            method="analytic",
+            check_collisions=False,
+        )
+        self.arm.set_qpos(ready.qpos)
+        self.gripper.set_opening(READY_OPENING)
+        mujoco.mj_forward(model, data)
+        mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
+
+    def fits_on_tray(self, grasp_xy, yaw: float) -> bool:
+        """Whether the instrument, its grasp point at ``grasp_xy`` and turned by ``yaw``, lies
+        inside the tray's rim with TRAY_MARGIN to spare (its bounding-box corners do)."""
+        low, high = self.instrument.bounding_box[:, :2] - self.instrument.grasp_point[:2]
+        corners = np.array([[low[0], low[1]], [low[0], high[1]], [high[0], low[1]], high])
+        c, s = math.cos(yaw), math.sin(yaw)
+        placed = corners @ np.array([[c, s], [-s, c]]) + np.asarray(grasp_xy, dtype=float)
+        limit = np.asarray(self.tray.inner_half_size) - TRAY_MARGIN
+        return bool(np.all(np.abs(placed - self.tray.center) <= limit))
+
+    def arm_ctrl(self) -> np.ndarray:
+        return self.data.ctrl[self._arm_actuators].copy()
+
+    def set_arm_ctrl(self, qpos: np.ndarray) -> None:
+        self.data.ctrl[self._arm_actuators] = qpos
+
+    def tcp_position(self) -> np.ndarray:
+        return self.data.site_xpos[self._tcp_site].copy()
+
+    def tcp_yaw(self) -> float:
+        """Angle of the tool's x axis about world z (rad); the jaws close along its y axis."""
+        x_axis = self.data.site_xmat[self._tcp_site].reshape(3, 3)[:, 0]
+        return math.atan2(x_axis[1], x_axis[0])
+
+    def wrist_camera_pose(self, arm_qpos) -> tuple[np.ndarray, np.ndarray]:
+        """Wrist camera position and rotation (columns = camera axes) for arm joint angles,
+        by forward kinematics in a scratch copy (the hand-eye calibration a robot has)."""
+        scratch = self._kinematics
+        scratch.qpos[:] = self.data.qpos
+        scratch.qpos[self.arm.qpos_indices] = arm_qpos
+        mujoco.mj_kinematics(self.model, scratch)
+        mujoco.mj_camlight(self.model, scratch)
+        return scratch.cam_xpos[self._camera_id].copy(), scratch.cam_xmat[self._camera_id].reshape(
+            3, 3
+        ).copy()
+
+    def grasp_point(self) -> np.ndarray:
+        return self.data.site_xpos[self._grasp_site].copy()
+
+    def grasp_axis(self) -> np.ndarray:
+        return self.data.site_xmat[self._grasp_site].reshape(3, 3)[:, 0].copy()
+
+    def instrument_velocity(self) -> np.ndarray:
+        return self.data.qvel[self._joint_dof : self._joint_dof + 3].copy()
+
+    def grasped(self) -> bool:
+        """Both pads press on the instrument with at least GRASP_FORCE_THRESHOLD."""
+        touching = self.gripper.pads_touching(self.body)
+        forces = self.gripper.fingertip_forces()
+        return bool(np.all(touching) and np.all(forces >= GRASP_FORCE_THRESHOLD))
+
+    def impact_force(self) -> float:
+        """Contact force (N) on the instrument from anything but the pads, less its weight."""
+        force = self.gripper.contact_force_on(self.body, exclude_geoms=set(self.gripper.pad_geoms))
+        weight = self.model.body_mass[self.body] * -self.model.opt.gravity[2]
+        return float(max(0.0, np.linalg.norm(force) - weight))
+
+    def camera(self, env: InstrumentGraspEnv) -> DepthCamera:
+        if self._camera is None:
+            self._camera = DepthCamera(
+                self.model, WRIST_CAMERA, env.intrinsics, backend=env._depth_backend
+            )
+        return self._camera
+
+    def rgb(self, intrinsics: CameraIntrinsics) -> np.ndarray:
+        if self._rgb is None:
+            self._rgb = mujoco.Renderer(self.model, intrinsics.height, intrinsics.width)
+            self._rgb.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0  # 20 ms -> 1-2 ms
+        self._rgb.update_scene(self.data, camera=WRIST_CAMERA)
+        return self._rgb.render()
+
+    def close(self) -> None:
+        if self._camera is not None:
+            self._camera.close()
+        if self._rgb is not None:
+            self._rgb.close()
+            self._rgb = None
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_rgb"] = None
+        return state

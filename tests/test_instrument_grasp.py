@@ -1,0 +1,266 @@
+"""InstrumentGrasp-v0: API conformance, reward bookkeeping, determinism, the scripted baselines
+against the force limit, bad input, and physics sanity under random actions."""
+
+import pickle
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import liuxing_envs  # noqa: F401  (registers the ids)
+from agents.grasp_baselines import ScriptedGrasp, Squeeze, detect_handle
+from liuxing_envs.envs.instrument_grasp import DEFAULT_FORCE_LIMIT, InstrumentGraspEnv
+
+REWARD_TERMS = (
+    "reward_reach",
+    "reward_grasp",
+    "reward_lift",
+    "reward_hold",
+    "reward_force",
+    "reward_impact",
+    "reward_failure",
+    "reward_success",
+)
+
+
+def run_policy(env, policy, seed):
+    """One episode; returns the last info and the list of per-step infos."""
+    observation, info = env.reset(seed=seed)
+    policy.reset()
+    infos = []
+    while True:
+        action, _ = policy.predict(observation)
+        observation, _, terminated, truncated, info = env.step(action)
+        infos.append(info)
+        if terminated or truncated:
+            return info, infos
+
+
+@pytest.mark.parametrize("obs_mode", ["state", "depth", "rgbd"])
+def test_passes_gymnasium_and_sb3_env_checks(obs_mode):
+    env = gym.make("InstrumentGrasp-v0", obs_mode=obs_mode, resolution=32)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped)
+    env.close()
+
+
+def test_make_vec_and_pickle_round_trip():
+    envs = gym.make_vec("InstrumentGrasp-v0", num_envs=2, vectorization_mode="sync")
+    observations, _ = envs.reset(seed=3)
+    assert observations["proprio"].shape == (2, 19)
+    observations, rewards, *_ = envs.step(np.zeros((2, 5), dtype=np.float32))
+    assert rewards.shape == (2,) and np.all(np.isfinite(rewards))
+    envs.close()
+
+    env = InstrumentGraspEnv(obs_mode="depth", resolution=32)
+    env.reset(seed=5)
+    clone = pickle.loads(pickle.dumps(env))
+    action = np.array([0.5, -0.3, -0.8, 0.2, 0.0], dtype=np.float32)
+    for _ in range(3):
+        a = env.step(action)
+        b = clone.step(action)
+    np.testing.assert_array_equal(a[0]["depth"], b[0]["depth"])
+    np.testing.assert_allclose(a[0]["proprio"], b[0]["proprio"])
+    assert a[1] == b[1]
+
+
+def test_reward_terms_sum_to_reward_and_seeds_repeat():
+    def rollout():
+        env = gym.make("InstrumentGrasp-v0")
+        env.reset(seed=11)
+        env.action_space.seed(11)
+        trace = []
+        for _ in range(60):
+            observation, reward, terminated, truncated, info = env.step(env.action_space.sample())
+            assert set(REWARD_TERMS) <= set(info)
+            assert reward == pytest.approx(sum(info[t] for t in REWARD_TERMS), abs=1e-9)
+            trace.append((reward, observation["instrument"].copy(), observation["proprio"].copy()))
+            if terminated or truncated:
+                env.reset()
+        return trace
+
+    first, second = rollout(), rollout()
+    for (r1, i1, p1), (r2, i2, p2) in zip(first, second, strict=True):
+        assert r1 == r2
+        np.testing.assert_array_equal(i1, i2)
+        np.testing.assert_array_equal(p1, p2)
+
+
+def test_scripted_grasp_lifts_gently_and_squeeze_breaks_the_limit():
+    env = gym.make("InstrumentGrasp-v0", obs_mode="rgbd")
+    for seed in (0, 11):
+        info, infos = run_policy(env, ScriptedGrasp(env), seed)
+        assert info["is_success"], info
+        assert info["lift_height"] >= 0.10
+        assert info["peak_force"] <= DEFAULT_FORCE_LIMIT
+        assert all(step["reward_force"] == 0.0 for step in infos)
+
+        info, infos = run_policy(env, Squeeze(env), seed)
+        assert not info["is_success"]
+        assert info["peak_force"] > DEFAULT_FORCE_LIMIT
+        assert min(step["reward_force"] for step in infos) < 0.0
+        assert info["hard_limit_exceeded"] and info["reward_failure"] < 0.0
+    env.close()
+
+
+def test_success_needs_the_hold_time_and_terminate_on_success_pays_the_rest():
+    env = gym.make("InstrumentGrasp-v0", obs_mode="rgbd", terminate_on_success=True)
+    info, infos = run_policy(env, ScriptedGrasp(env), 0)
+    assert info["is_success"] and len(infos) < 200
+    steps_at_height = sum(1 for step in infos if step["reward_hold"] > 0)
+    assert steps_at_height == 20  # 1 s at 20 Hz, then it ends
+    assert info["reward_success"] == pytest.approx(5.0 * (200 - len(infos)))
+    assert not any(step["is_success"] for step in infos[:-1])
+
+
+def test_handle_detection_matches_the_grasp_point():
+    env = InstrumentGraspEnv(obs_mode="rgbd", resolution=128)
+    for seed in range(4):
+        observation, _ = env.reset(seed=seed)
+        position, rotation = env.wrist_camera_pose()
+        detection = detect_handle(
+            observation["rgb"].transpose(1, 2, 0),
+            env.decode_depth(observation["depth"][0]),
+            env.intrinsics,
+            position,
+            rotation,
+        )
+        truth = env.world.grasp_point()
+        assert detection is not None
+        assert np.linalg.norm(detection.point[:2] - truth[:2]) < 0.004
+        assert abs(detection.floor_z - env.world.tray.floor_z) < 0.003
+        # The axis is the handle's, up to sign.
+        assert abs(np.dot(detection.axis, env.world.grasp_axis())) > 0.99
+
+
+def test_random_actions_never_push_the_instrument_through_anything():
+    env = InstrumentGraspEnv(instrument_set="all", mass_range=(0.5, 2.0), friction_range=(0.7, 1.3))
+    rng = np.random.default_rng(0)
+    env.reset(seed=0)
+    deepest = 0.0
+    for step in range(1500):
+        action = rng.uniform(-1, 1, 5)
+        action[2] = rng.uniform(-1.0, 0.3)  # biased down, towards the tray and instrument
+        _, _, terminated, truncated, info = env.step(action)
+        world = env.world
+        data = world.data
+        assert not np.any(data.warning.number), f"MuJoCo warning at step {step}"
+        assert np.all(np.isfinite(data.qpos))
+        grasp = world.grasp_point()
+        over_tray = np.all(np.abs(grasp[:2] - world.tray.center) < world.tray.inner_half_size)
+        assert not over_tray or grasp[2] > world.tray.floor_z - 0.002
+        assert np.linalg.norm(world.instrument_velocity()) < 5.0
+        # Fast moves may overshoot the workspace floor, but never sink the fingertips (4 mm
+        # below the tool centre) into the tray.
+        assert world.tcp_position()[2] - 0.004 > world.tray.floor_z - 0.002
+        if data.ncon:
+            deepest = min(deepest, float(data.contact.dist.min()))
+        if terminated or truncated or step % 100 == 99:
+            env.reset()
+    assert deepest > -0.003  # soft contacts only: no body sinks into another
+
+
+def test_placements_lie_on_the_tray_and_options_are_checked():
+    env = InstrumentGraspEnv(instrument_set="all")
+    for seed in range(30):
+        env.reset(seed=seed)
+        low, high = env.world.instrument.bounding_box[:, :2]
+        body = env.world.data.xpos[env.world.body]
+        tray = np.asarray(env.world.tray.center)
+        assert np.all(np.abs(body[:2] - tray) < np.asarray(env.world.tray.inner_half_size))
+        assert env.world.grasp_point()[2] < env.world.tray.floor_z + 0.01
+        assert high[0] - low[0] > 0.1
+    env.reset(options={"instrument": "probe", "position": (0.5, 0.0), "yaw": 0.3})
+    assert env.world.name == "probe"
+    np.testing.assert_allclose(env.world.grasp_point()[:2], (0.5, 0.0), atol=2e-3)
+    with pytest.raises(ValueError, match="does not lie inside the tray"):
+        env.reset(options={"position": (0.5, 0.19), "yaw": 1.57})
+    with pytest.raises(ValueError, match="unknown reset option"):
+        env.reset(options={"colour": "red"})
+    with pytest.raises(ValueError, match="instrument='spoon'"):
+        env.reset(options={"instrument": "spoon"})
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"obs_mode": "pixels"}, "obs_mode"),
+        ({"controller": "torque"}, "controller"),
+        ({"instrument_set": "test"}, "instrument_set"),
+        ({"instruments": ["spoon"]}, "instruments"),
+        ({"force_limit": -1.0}, "force_limit"),
+        ({"force_limit": float("nan")}, "force_limit"),
+        ({"control_hz": 30.0}, "control_hz"),
+        ({"mass_range": (2.0, 1.0)}, "mass_range"),
+        ({"resolution": 64.5}, "resolution"),
+        ({"terminate_on_success": "yes"}, "terminate_on_success"),
+    ],
+)
+def test_bad_kwargs_name_the_argument(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        InstrumentGraspEnv(**kwargs)
+
+
+def test_bad_actions_are_refused():
+    env = InstrumentGraspEnv()
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(5))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([0.0, np.nan, 0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(7))
+
+
+def test_joint_delta_moves_each_joint_by_the_action():
+    env = InstrumentGraspEnv(controller="joint_delta")
+    observation, _ = env.reset(seed=0)
+    start = observation["proprio"][:6].copy()
+    action = np.array([0.4, -0.4, 0.4, -0.4, 0.4, -0.4, 1.0], dtype=np.float32)
+    for _ in range(4):
+        observation, *_ = env.step(action)
+    for _ in range(10):  # zero action: the set-points stay, the servos catch up
+        observation, *_ = env.step(np.zeros(7, dtype=np.float32))
+    moved = observation["proprio"][:6] - start
+    np.testing.assert_allclose(moved, 4 * 0.05 * action[:6], atol=0.003)
+
+
+def test_ee_delta_moves_the_tool_centre_and_holds_still_on_zero():
+    env = InstrumentGraspEnv()
+    observation, _ = env.reset(seed=0)
+    start = observation["proprio"][12:15].copy()
+    for _ in range(5):
+        observation, *_ = env.step(np.array([1.0, 0.0, -1.0, 0.0, 1.0], dtype=np.float32))
+    moved = observation["proprio"][12:15] - start
+    # Each step moves the set-point up to 2 cm from the measured pose; the servos lag.
+    assert 0.04 < moved[0] <= 0.1 and -0.1 <= moved[2] < -0.02 and abs(moved[1]) < 0.005
+    for _ in range(5):
+        observation, *_ = env.step(np.zeros(5, dtype=np.float32))
+    here = observation["proprio"][12:15].copy()
+    for _ in range(20):
+        observation, *_ = env.step(np.zeros(5, dtype=np.float32))
+    np.testing.assert_allclose(observation["proprio"][12:15], here, atol=0.002)
+
+
+def test_depth_levels_round_trip_and_randomised_mass():
+    depth = np.array([[0.0, 0.1, 0.35], [0.6, 2.0, 0.2]])
+    decoded = InstrumentGraspEnv.decode_depth(InstrumentGraspEnv.encode_depth(depth))
+    np.testing.assert_allclose(decoded[0], [0.0, 0.1, 0.35], atol=0.001)
+    assert decoded[1, 1] == pytest.approx(0.6)  # beyond the range saturates
+
+    env = InstrumentGraspEnv(mass_range=(2.0, 2.0), instruments=["scalpel"])
+    env.reset(seed=0)
+    assert mujoco.mj_getTotalmass(env.world.model) > 0
+    assert env.world.model.body_mass[env.world.body] == pytest.approx(0.040)
+
+
+def test_render_shows_the_scene():
+    env = InstrumentGraspEnv(render_mode="rgb_array")
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (480, 640, 3) and frame.dtype == np.uint8
+    assert frame.std() > 10
+    env.close()
