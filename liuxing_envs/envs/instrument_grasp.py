@@ -18,7 +18,13 @@ from liuxing_envs.envs.validation import (
 )
 from liuxing_envs.sim.arm import Arm
 from liuxing_envs.sim.camera import CameraIntrinsics, DepthCamera
-from liuxing_envs.sim.gripper import MAX_OPENING, TCP_SITE, Gripper, attach_gripper
+from liuxing_envs.sim.gripper import (
+    GRASP_NOSLIP_ITERATIONS,
+    MAX_OPENING,
+    TCP_SITE,
+    Gripper,
+    attach_gripper,
+)
 from liuxing_envs.sim.instruments import (
     INSTRUMENT_SETS,
     add_instrument,
@@ -341,6 +347,10 @@ class InstrumentGraspEnv(gym.Env):
         pad_peak, impact_peak = np.zeros(2), 0.0
         physics_steps = 0
         while physics_steps < self.substeps:
+            # Noslip iterations stop a held instrument creeping in the pads; they cost a third
+            # of a physics step, so they run only while a pad touches something.
+            touching = world.gripper.fingertip_forces().max() > 0.0
+            world.model.opt.noslip_iterations = GRASP_NOSLIP_ITERATIONS if touching else 0
             n = min(FORCE_SAMPLE_SUBSTEPS, self.substeps - physics_steps)
             mujoco.mj_step(world.model, world.data, nstep=n)
             physics_steps += n
@@ -567,6 +577,7 @@ class _World:
     def reset(self, grasp_xy, yaw: float, mass_scale: float, friction_scale: float) -> None:
         model, data = self.model, self.data
         reset_to_home(model, data)
+        model.opt.noslip_iterations = 0  # the pads start clear of everything (see step())
         model.body_mass[self.body] = self._nominal_mass * mass_scale
         model.body_inertia[self.body] = self._nominal_inertia * mass_scale
         model.geom_friction[self._geoms, 0] = self._nominal_friction[:, 0] * friction_scale

@@ -121,8 +121,10 @@ class Gripper:
             return total
         geoms = d.contact.geom
         bodies = m.geom_bodyid[geoms]
+        is_excluded = np.zeros(m.ngeom, dtype=bool)
+        is_excluded[list(exclude_geoms)] = True
         excluded = (bodies == body_id).any(axis=1) & (bodies[:, 0] != bodies[:, 1])
-        excluded &= np.isin(geoms, list(exclude_geoms)).any(axis=1)
+        excluded &= is_excluded[geoms].any(axis=1)
         frames = d.contact.frame
         for i in np.flatnonzero(excluded):
             mujoco.mj_contactForce(m, d, i, self._wrench)
