@@ -192,6 +192,7 @@ class ScriptedGrasp:
         self.detection: HandleDetection | None = None
         self.target_yaw = 0.0
         self.grasp_z = 0.0
+        self.lift_target = np.zeros(3)
         self.opening_command = MAX_OPENING
         self._steps_in_phase = 0
         self._settled = 0

@@ -14,11 +14,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from benchmarks.isolated import peak_rss_mib, run_in_fresh_process  # noqa: E402
+from benchmarks.isolated import random_action_throughput, run_in_fresh_process  # noqa: E402
 
 CONFIGS = [  # (obs_mode, depth backend, resolution)
     ("state", "gl", 64),
@@ -36,26 +35,7 @@ def measure(obs_mode: str, backend: str, resolution: int, steps: int, repeats: i
     env = gym.make(
         "InstrumentGrasp-v0", obs_mode=obs_mode, depth_backend=backend, resolution=resolution
     )
-    env.action_space.seed(0)
-    env.reset(seed=0)
-
-    def run(count: int) -> float:
-        start = time.perf_counter()
-        for _ in range(count):
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            if terminated or truncated:
-                env.reset()
-        return count / (time.perf_counter() - start)
-
-    run(100)  # warm-up: renderers, caches
-    rates = sorted(run(steps) for _ in range(repeats))
-    env.close()
-    return {
-        "median": rates[len(rates) // 2],
-        "min": rates[0],
-        "max": rates[-1],
-        "mib": peak_rss_mib(),
-    }
+    return random_action_throughput(env, steps, repeats, warmup=100)
 
 
 def main() -> None:

@@ -11,11 +11,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from benchmarks.isolated import peak_rss_mib, run_in_fresh_process  # noqa: E402
+from benchmarks.isolated import random_action_throughput, run_in_fresh_process  # noqa: E402
 
 CONFIGS = [
     ("raycast", "kinematic", 64),
@@ -31,27 +30,7 @@ def measure(backend: str, motion: str, resolution: int, steps: int, repeats: int
     from liuxing_envs.envs.view_planning import ViewPlanningEnv
 
     env = ViewPlanningEnv(depth_backend=backend, motion=motion, resolution=resolution)
-    env.action_space.seed(0)
-    env.reset(seed=0)  # seeds the episode stream; each run() starts with a fresh episode
-
-    def run(count: int) -> float:
-        done, start = True, time.perf_counter()
-        for _ in range(count):
-            if done:
-                env.reset()
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            done = terminated or truncated
-        return count / (time.perf_counter() - start)
-
-    run(env.view_budget)  # warm-up
-    rates = sorted(run(steps) for _ in range(repeats))
-    env.close()
-    return {
-        "median": rates[len(rates) // 2],
-        "min": rates[0],
-        "max": rates[-1],
-        "mib": peak_rss_mib(),
-    }
+    return random_action_throughput(env, steps, repeats, warmup=env.view_budget)
 
 
 def main() -> None:

@@ -326,7 +326,7 @@ class InstrumentGraspEnv(gym.Env):
         self._impact_violations = 0
         self._start_height = self.world.grasp_point()[2]
         self._episode_ready = True
-        info = self._info(terms={}, grasped=False, pad_peak=np.zeros(2), success=False)
+        info = self._info(terms={}, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0)
         return self._observation(), info
 
     def step(self, action):
@@ -346,15 +346,17 @@ class InstrumentGraspEnv(gym.Env):
 
         pad_peak, impact_peak = np.zeros(2), 0.0
         physics_steps = 0
+        forces = world.gripper.fingertip_forces()
         while physics_steps < self.substeps:
             # Noslip iterations stop a held instrument creeping in the pads; they cost a third
             # of a physics step, so they run only while a pad touches something.
-            touching = world.gripper.fingertip_forces().max() > 0.0
+            touching = forces.max() > 0.0
             world.model.opt.noslip_iterations = GRASP_NOSLIP_ITERATIONS if touching else 0
             n = min(FORCE_SAMPLE_SUBSTEPS, self.substeps - physics_steps)
             mujoco.mj_step(world.model, world.data, nstep=n)
             physics_steps += n
-            pad_peak = np.maximum(pad_peak, world.gripper.fingertip_forces())
+            forces = world.gripper.fingertip_forces()
+            pad_peak = np.maximum(pad_peak, forces)
             impact_peak = max(impact_peak, world.impact_force())
             if pad_peak.max() > self.hard_limit or impact_peak > self.hard_impact_limit:
                 # Protective stop, as a real arm's force monitor does: hold the arm and the
@@ -366,7 +368,8 @@ class InstrumentGraspEnv(gym.Env):
         self._steps += 1
 
         grasped = world.grasped()
-        lift = world.grasp_point()[2] - self._start_height
+        grasp_point = world.grasp_point()
+        lift = grasp_point[2] - self._start_height
         at_height = grasped and lift >= self.target_height
         self._hold_count = self._hold_count + 1 if at_height else 0
         step_peak = float(pad_peak.max())
@@ -378,7 +381,7 @@ class InstrumentGraspEnv(gym.Env):
         success = self._held and self._peak_force <= self.force_limit
         ends_in_success = success and self.terminate_on_success
 
-        distance = np.linalg.norm(world.tcp_position() - world.grasp_point())
+        distance = np.linalg.norm(world.tcp_position() - grasp_point)
         terms = {
             "reward_reach": 1.0 - math.tanh(10.0 * distance),
             "reward_grasp": float(grasped),
@@ -398,7 +401,7 @@ class InstrumentGraspEnv(gym.Env):
         truncated = False  # the TimeLimit wrapper's job, as in Gymnasium's MuJoCo envs
         if terminated:
             self._episode_ready = False
-        info = self._info(terms, grasped=grasped, pad_peak=pad_peak, success=success)
+        info = self._info(terms, grasped=grasped, pad_peak=pad_peak, success=success, lift=lift)
         info["hard_limit_exceeded"] = bool(broke_limit)
         return self._observation(), reward, terminated, truncated, info
 
@@ -515,7 +518,7 @@ class InstrumentGraspEnv(gym.Env):
             obs["rgb"] = world.rgb(self.intrinsics).transpose(2, 0, 1).copy()
         return obs
 
-    def _info(self, terms: dict, *, grasped: bool, pad_peak, success: bool) -> dict:
+    def _info(self, terms: dict, *, grasped: bool, pad_peak, success: bool, lift: float) -> dict:
         world = self.world
         return {
             **terms,
@@ -524,7 +527,7 @@ class InstrumentGraspEnv(gym.Env):
             "peak_force": self._peak_force,
             "step_peak_force": float(np.max(pad_peak)),
             "grip_force": float(np.max(world.gripper.fingertip_forces())),
-            "lift_height": float(world.grasp_point()[2] - self._start_height),
+            "lift_height": float(lift),
             "force_violations": self._force_violations,
             "impact_violations": self._impact_violations,
             "instrument": world.name,
@@ -571,8 +574,6 @@ class _World:
         self._kinematics = mujoco.MjData(model)
         self._camera: DepthCamera | None = None
         self._rgb: mujoco.Renderer | None = None
-        grasp_local = model.site_pos[self._grasp_site].copy()
-        self._grasp_offset_xy = grasp_local[:2]
 
     def reset(self, grasp_xy, yaw: float, mass_scale: float, friction_scale: float) -> None:
         model, data = self.model, self.data
@@ -583,12 +584,8 @@ class _World:
         model.geom_friction[self._geoms, 0] = self._nominal_friction[:, 0] * friction_scale
         # Put the grasp point at grasp_xy: the body origin is offset from it in the plane.
         c, s = math.cos(yaw), math.sin(yaw)
-        offset = np.array(
-            [
-                c * self._grasp_offset_xy[0] - s * self._grasp_offset_xy[1],
-                s * self._grasp_offset_xy[0] + c * self._grasp_offset_xy[1],
-            ]
-        )
+        gx, gy = self.instrument.grasp_point[:2]
+        offset = np.array([c * gx - s * gy, s * gx + c * gy])
         position = [*(np.asarray(grasp_xy) - offset), self.tray.floor_z]
         data.qpos[self._joint_qpos : self._joint_qpos + 3] = position
         data.qpos[self._joint_qpos + 3 : self._joint_qpos + 7] = [
