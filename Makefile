@@ -1,5 +1,5 @@
 # Two commands do all set-up on a fresh machine (see README):
-#   make run    create .venv, install the package, run the main job
+#   make run    create .venv, install the package, run the main job (python train.py)
 #   make test   create .venv, install the package and test tools, run the whole test suite
 PYTHON ?= python3
 VENV ?= .venv
@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run test install clean
+.PHONY: run demo test install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,7 +26,11 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 
 install: $(VENV)/.installed
 
+# The default run: PPO on ViewPlanning-v0, then its held-out score against the four-view baseline.
 run: $(VENV)/.installed
+	$(BIN)/python train.py
+
+demo: $(VENV)/.installed
 	$(BIN)/python -m liuxing_envs.demo --out outputs/demo
 
 test: $(VENV)/.installed

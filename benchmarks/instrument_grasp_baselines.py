@@ -11,7 +11,6 @@ limit, and the mean number of control steps above the force limit.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import time
 
@@ -21,19 +20,8 @@ import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 import liuxing_envs  # noqa: E402, F401
+from agents.evaluation import wilson_interval  # noqa: E402
 from agents.grasp_baselines import GRASP_BASELINES  # noqa: E402
-
-
-def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
-    """95% Wilson score interval of a success rate."""
-    if trials == 0:
-        return 0.0, 1.0
-    p = successes / trials
-    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
-    half = (
-        z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
-    )
-    return centre - half, centre + half
 
 
 def run(baseline: str, episodes: int, instrument_set: str) -> dict:

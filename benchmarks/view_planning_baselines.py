@@ -15,18 +15,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
+from agents.evaluation import bootstrap_ci  # noqa: E402
 from agents.view_baselines import BASELINES  # noqa: E402
 from liuxing_envs.envs.view_planning import ViewPlanningEnv  # noqa: E402
-
-BOOTSTRAP_RESAMPLES = 10_000
-
-
-def bootstrap_ci(values: np.ndarray, seed: int = 0) -> tuple[float, float]:
-    """95% percentile-bootstrap confidence interval of the mean."""
-    rng = np.random.default_rng(seed)
-    means = rng.choice(values, size=(BOOTSTRAP_RESAMPLES, len(values))).mean(axis=1)
-    low, high = np.percentile(means, [2.5, 97.5])
-    return float(low), float(high)
 
 
 def run(baseline: str, episodes: int, object_set: str, budget: int) -> dict:

@@ -264,3 +264,36 @@ def test_render_shows_the_scene():
     assert frame.shape == (480, 640, 3) and frame.dtype == np.uint8
     assert frame.std() > 10
     env.close()
+
+
+def test_instrument_sleeps_at_rest_and_the_pads_wake_it():
+    # Sleeping is what makes untouched steps cheap; it must never hide a touch or a grasp.
+    env = InstrumentGraspEnv(instruments=["scalpel"])
+    observation, _ = env.reset(seed=0, options={"position": [0.5, 0.0], "yaw": 0.0})
+    world = env.world
+    assert world.asleep() and world.impact_force() == 0.0
+    np.testing.assert_array_equal(observation["instrument"][6:], 0.0)
+
+    def step_towards(target, opening):
+        delta = (target - world.tcp_position()) / env.max_translation
+        action = np.append(np.clip(delta, -1, 1), [0.0, opening / 0.04 - 1.0])
+        _, _, terminated, _, info = env.step(action)
+        assert not terminated
+        if world.gripper.pads_touching(world.body).any():
+            assert not world.asleep()
+        return info
+
+    grasp = world.grasp_point()
+    for _ in range(30):
+        step_towards(grasp + [0.0, 0.0, 0.03], 0.03)
+    assert world.asleep()  # the open fingers above it do not wake it
+    for _ in range(20):
+        step_towards(grasp + [0.0, 0.0, 0.002], 0.03)
+    opening = 0.03
+    while world.gripper.fingertip_forces().min() < 2.0:  # close gently, as ScriptedGrasp does
+        opening -= 0.0004
+        step_towards(grasp + [0.0, 0.0, 0.002], opening)
+    assert not world.asleep() and world.grasped()
+    for _ in range(30):
+        info = step_towards(grasp + [0.0, 0.0, 0.06], opening)
+    assert info["grasped"] and info["lift_height"] > 0.04  # lifted by friction alone

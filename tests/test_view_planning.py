@@ -288,3 +288,18 @@ def test_reconstruction_of_a_four_view_scan_is_scored_and_saved(tmp_path):
     assert 0.0 <= metrics["fscore"] <= 1.0 and metrics["precision"] > 0.5
     assert {p.suffix for p in tmp_path.iterdir()} >= {".ply", ".pcd"}
     env.close()
+
+
+@pytest.mark.parametrize("motion", ["kinematic", "dynamic"])
+def test_ray_cast_stand_in_scene_gives_the_live_models_image(motion):
+    # The raycast backend casts in a per-variant copy of the scene without the parked
+    # variants (faster); the image must be the one the full live model gives, bit for bit.
+    env = ViewPlanningEnv(depth_backend="raycast", motion=motion, **FAST)
+    env.action_space.seed(0)
+    for seed in range(3):
+        env.reset(seed=seed)
+        for _ in range(2):
+            env.step(env.action_space.sample())
+            np.testing.assert_array_equal(env._depth, env.camera.render(env.data))
+    assert env._ray_scenes is not None and len(env._ray_scenes) == len(FAST["objects"])
+    env.close()

@@ -247,14 +247,19 @@ class Arm:
         waypoints = self._waypoints(q_from, q_to)
         last_free = np.asarray(q_from, dtype=float).copy()
         self._pose_scratch(last_free)  # the world (objects) is copied once per path
+        # The hot loop of planning (dozens of waypoints per path): locals, and the contact
+        # filter only runs when MuJoCo found any contact at all.
+        qpos, qpos_idx = d.qpos, self._qpos_idx
+        kinematics, collision = mujoco.mj_kinematics, mujoco.mj_collision
         for k, q in enumerate(waypoints):
-            d.qpos[self._qpos_idx] = q
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_collision(m, d)
-            contacts = self._arm_contacts(d)
-            if contacts:
-                fraction = k / len(waypoints)
-                return PathCheck(False, last_free, fraction, contacts)
+            qpos[qpos_idx] = q
+            kinematics(m, d)
+            collision(m, d)
+            if d.ncon:
+                contacts = self._arm_contacts(d)
+                if contacts:
+                    fraction = k / len(waypoints)
+                    return PathCheck(False, last_free, fraction, contacts)
             last_free = q
         return PathCheck(True, last_free, 1.0, ())
 
@@ -686,9 +691,26 @@ def _as_rotation(value) -> np.ndarray:
     rot = np.asarray(value, dtype=float)
     if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
         raise ValueError(f"rotation must be a finite 3x3 matrix, got shape {rot.shape}")
-    if not np.allclose(rot.T @ rot, np.eye(3), atol=1e-6) or np.linalg.det(rot) < 0:
+    # np.allclose(rot.T @ rot, I, atol=1e-6) and det(rot) > 0, spelled out: this runs on every
+    # IK query, and the generic functions cost ~10x more on a 3x3 matrix.
+    gram_error = np.abs(rot.T @ rot - _IDENTITY3) - _ORTHONORMAL_TOLERANCE
+    if not (gram_error <= 0.0).all() or _det3(rot) < 0:
         raise ValueError("rotation must be a proper rotation matrix (orthonormal, det +1)")
     return rot
+
+
+_IDENTITY3 = np.eye(3)
+#: np.allclose's tolerance against the identity: atol + rtol * |I| (rtol = 1e-5).
+_ORTHONORMAL_TOLERANCE = 1e-6 + 1e-5 * _IDENTITY3
+
+
+def _det3(r: np.ndarray) -> float:
+    a, b, c = r.tolist()
+    return (
+        a[0] * (b[1] * c[2] - b[2] * c[1])
+        - a[1] * (b[0] * c[2] - b[2] * c[0])
+        + a[2] * (b[0] * c[1] - b[1] * c[0])
+    )
 
 
 def _require_id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str) -> int:

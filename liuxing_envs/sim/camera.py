@@ -473,12 +473,12 @@ class _RaycastBackend:
         self._dist = np.empty(self._nray, dtype=np.float64)
         self._cutoff = _RAY_CUTOFF_MARGIN * intrinsics.max_depth / float(self._cos_axis.min())
 
-    def render(self, data: mujoco.MjData) -> np.ndarray:
+    def render(self, data: mujoco.MjData, model: mujoco.MjModel | None = None) -> np.ndarray:
         position = np.array(data.cam_xpos[self._camera_id], dtype=np.float64)
         rotation = data.cam_xmat[self._camera_id].reshape(3, 3)
         vec = np.ascontiguousarray(self._rays_cam @ rotation.T).reshape(-1)
         mujoco.mj_multiRay(
-            self._model,
+            self._model if model is None else model,
             data,
             position,
             vec,
@@ -610,13 +610,24 @@ class DepthCamera:
 
     # -- rendering --
 
-    def render(self, data: mujoco.MjData, rng: np.random.Generator | None = None) -> np.ndarray:
+    def render(
+        self,
+        data: mujoco.MjData,
+        rng: np.random.Generator | None = None,
+        *,
+        model: mujoco.MjModel | None = None,
+    ) -> np.ndarray:
         """The ``(height, width)`` float32 z-depth image of ``data``'s state (see class doc).
 
         Needs ``data``'s kinematics to be current (after :func:`mujoco.mj_forward`,
         :func:`mujoco.mj_step`, or :func:`mujoco.mj_kinematics`); the camera pose is refreshed
         from them here with :func:`mujoco.mj_camlight`. ``rng`` drives the noise model and is
         required when :attr:`noise` is enabled.
+
+        ``model`` (ray-cast backend only): the model ``data`` belongs to when it is not the
+        camera's own but a stand-in for it, e.g. the same scene compiled without bodies that
+        cannot be seen (every body costs each ray a bounding test). It must hold this camera
+        at the same index, with the same ``fovy`` and body chain.
         """
         backend = self._require_open()
         if self.noise.enabled and rng is None:
@@ -624,10 +635,14 @@ class DepthCamera:
                 "DepthCamera.render: the noise model is enabled, so an rng is required, e.g. "
                 "render(data, rng=numpy.random.default_rng(seed))"
             )
+        if model is None:
+            model = self.model
+        elif not isinstance(backend, _RaycastBackend):
+            raise ValueError("DepthCamera.render: a stand-in model needs the raycast backend")
         # Another DepthCamera on the same MuJoCo camera may have set a different fovy.
-        self.model.cam_fovy[self.camera_id] = self.intrinsics.fovy_deg
-        mujoco.mj_camlight(self.model, data)
-        depth = backend.render(data)
+        model.cam_fovy[self.camera_id] = self.intrinsics.fovy_deg
+        mujoco.mj_camlight(model, data)
+        depth = backend.render(data) if model is self.model else backend.render(data, model)
         crop_depth_range(depth, self.intrinsics.min_depth, self.intrinsics.max_depth)
         if self.noise.enabled:
             depth = self.noise.apply(depth, self.intrinsics, rng)

@@ -132,15 +132,3 @@ class Gripper:
             force = frames[i].reshape(3, 3).T @ self._wrench[:3]
             total -= force if bodies[i, 1] == body_id else -force
         return total
-        geoms = d.contact.geom
-        bodies = m.geom_bodyid[geoms]
-        involved = (bodies == body_id).any(axis=1) & (bodies[:, 0] != bodies[:, 1])
-        if len(exclude_geoms):
-            involved &= ~np.isin(geoms, list(exclude_geoms)).any(axis=1)
-        frames = d.contact.frame
-        for i in np.flatnonzero(involved):
-            mujoco.mj_contactForce(m, d, i, self._wrench)
-            # The wrench is in the contact frame and acts on geom2's body (from geom1's).
-            force = frames[i].reshape(3, 3).T @ self._wrench[:3]
-            total += force if bodies[i, 1] == body_id else -force
-        return total

@@ -7,6 +7,8 @@ measured up from the table plane; both in radians.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 WORLD_UP = (0.0, 0.0, 1.0)
@@ -18,27 +20,35 @@ FALLBACK_UP = (1.0, 0.0, 0.0)
 def look_at(eye, target, up=WORLD_UP) -> np.ndarray:
     """Rotation (3x3, columns = camera x, y, z in the world) of a camera at ``eye`` looking
     at ``target``, rolled so the image's up is as close to ``up`` as possible."""
-    eye = np.asarray(eye, dtype=float)
-    forward = np.asarray(target, dtype=float) - eye
-    norm = np.linalg.norm(forward)
-    if not np.isfinite(norm) or norm < 1e-9:
-        raise ValueError(f"eye {eye} and target {target} must be finite and distinct")
-    forward /= norm
-    up = np.asarray(up, dtype=float)
-    if np.linalg.norm(np.cross(forward, up)) < 1e-6:
-        up = np.asarray(FALLBACK_UP)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    image_up = np.cross(right, forward)
-    return np.column_stack([right, image_up, -forward])
+    # Plain float arithmetic: this runs once per env step, and np.cross / np.linalg.norm on
+    # 3-vectors cost several microseconds each in call overhead alone.
+    ex, ey, ez = (float(v) for v in np.asarray(eye, dtype=float))
+    tx, ty, tz = (float(v) for v in np.asarray(target, dtype=float))
+    fx, fy, fz = tx - ex, ty - ey, tz - ez
+    norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if not math.isfinite(norm) or norm < 1e-9:
+        raise ValueError(f"eye {np.asarray(eye)} and target {target} must be finite and distinct")
+    fx, fy, fz = fx / norm, fy / norm, fz / norm
+    ux, uy, uz = (float(v) for v in np.asarray(up, dtype=float))
+    rx, ry, rz = _cross(fx, fy, fz, ux, uy, uz)
+    if math.sqrt(rx * rx + ry * ry + rz * rz) < 1e-6:
+        rx, ry, rz = _cross(fx, fy, fz, *FALLBACK_UP)
+    norm = math.sqrt(rx * rx + ry * ry + rz * rz)
+    rx, ry, rz = rx / norm, ry / norm, rz / norm
+    ix, iy, iz = _cross(rx, ry, rz, fx, fy, fz)
+    return np.array([[rx, ix, -fx], [ry, iy, -fy], [rz, iz, -fz]])
+
+
+def _cross(ax, ay, az, bx, by, bz) -> tuple[float, float, float]:
+    return ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
 
 
 def sphere_point(center, azimuth: float, elevation: float, radius: float) -> np.ndarray:
     """The point at (azimuth, elevation, radius) on a sphere around ``center``."""
     center = np.asarray(center, dtype=float)
-    ce = np.cos(elevation)
+    ce = math.cos(elevation)
     return center + radius * np.array(
-        [ce * np.cos(azimuth), ce * np.sin(azimuth), np.sin(elevation)]
+        [ce * math.cos(azimuth), ce * math.sin(azimuth), math.sin(elevation)]
     )
 
 

@@ -1,0 +1,171 @@
+"""Training configuration: hyper-parameter files, ``key=value`` overrides and their checks.
+
+One YAML file per algorithm under ``agents/hyperparams/``, keyed by environment id (the
+rl-baselines3-zoo layout). Each entry holds the algorithm's constructor arguments plus the
+harness keys in :data:`HARNESS_KEYS`. Values given on the command line as ``key=value`` are
+parsed as YAML scalars/flow collections (``yaml.safe_load``), never evaluated as Python.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import inspect
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+
+import yaml
+
+HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
+ALGOS = ("ppo", "sac")
+
+#: Keys of a hyper-parameter entry that configure the harness, not the SB3 algorithm.
+HARNESS_KEYS = {
+    "n_timesteps": "total environment steps of a run",
+    "n_envs": "parallel training environments",
+    "policy": "SB3 policy class name (MultiInputPolicy for the Dict observations)",
+    "env_kwargs": "keyword arguments of gym.make for training and evaluation",
+    "normalize": "wrap in VecNormalize (observations only; vector keys only)",
+}
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML 1.1 reads ``1e-4`` (no dot) as a string; hyper-parameters are written that way."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+][0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
+def safe_load(text: str):
+    """``yaml.safe_load`` that also reads ``1e-4`` as a float; never constructs objects."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader subclass)
+
+
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+class ConfigError(ValueError):
+    """A configuration value the harness cannot use; the message says what is allowed."""
+
+
+def closest(name: str, allowed: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the closest allowed name, or ``""`` if none is close."""
+    match = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.5)
+    return f" (did you mean {match[0]!r}?)" if match else ""
+
+
+def require_known(kind: str, name: str, allowed: Sequence[str]) -> str:
+    if name not in allowed:
+        raise ConfigError(
+            f"unknown {kind} {name!r}{closest(name, allowed)}; allowed: {', '.join(allowed)}"
+        )
+    return name
+
+
+def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
+    """``["a=1", "b.c=[64, 64]"]`` -> ``{"a": 1, "b": {"c": [64, 64]}}``.
+
+    Values are YAML (``1e-3``, ``true``, ``[64, 64]``, ``{a: 1}``, ``null``); dotted keys
+    build nested mappings so ``policy_kwargs.net_arch=[64,64]`` overrides one entry.
+    """
+    result: dict = {}
+    for item in items or ():
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"{flag} expects key=value items, got {item!r}")
+        try:
+            value = safe_load(text) if text.strip() else None
+        except yaml.YAMLError as error:
+            raise ConfigError(f"{flag} {key}: cannot parse {text!r} as a YAML value") from error
+        parts = key.split(".")
+        if not all(_NAME.fullmatch(part) for part in parts):
+            raise ConfigError(f"{flag} expects key=value items with names as keys, got {item!r}")
+        target = result
+        for part in parts[:-1]:
+            target = target.setdefault(part, {})
+            if not isinstance(target, dict):
+                raise ConfigError(f"{flag} {key}: {part!r} is set both as a value and a mapping")
+        target[parts[-1]] = value
+    return result
+
+
+def deep_update(base: Mapping, overrides: Mapping) -> dict:
+    """A copy of ``base`` with ``overrides`` merged in, mapping by mapping."""
+    merged = copy.deepcopy(dict(base))
+    for key, value in overrides.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = deep_update(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def load_yaml(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    try:
+        content = safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ConfigError(f"config file {str(path)!r} is not valid YAML: {error}") from error
+    if content is None:
+        return {}
+    if not isinstance(content, dict):
+        raise ConfigError(f"config file {str(path)!r} must hold a mapping, got {type(content)}")
+    return content
+
+
+def default_hyperparams(algo: str, env_id: str, config_file: str | Path | None = None) -> dict:
+    """The entry for ``env_id`` in ``config_file`` (default: ``agents/hyperparams/<algo>.yml``).
+
+    A custom file may hold a single entry without an env-id key; it is then used as is.
+    """
+    require_known("algorithm", algo, ALGOS)
+    path = Path(config_file) if config_file else HYPERPARAMS_DIR / f"{algo}.yml"
+    content = load_yaml(path)
+    if env_id in content:
+        entry = content[env_id]
+    elif config_file and not any(key.endswith("-v0") for key in content):
+        entry = content
+    else:
+        raise ConfigError(
+            f"{str(path)!r} has no entry for {env_id!r}; it has: {', '.join(content) or 'none'}"
+        )
+    if not isinstance(entry, dict):
+        raise ConfigError(f"the entry for {env_id!r} in {str(path)!r} must be a mapping")
+    return copy.deepcopy(entry)
+
+
+def split_hyperparams(hyperparams: Mapping, algo_class: type) -> tuple[dict, dict]:
+    """(harness settings, algorithm kwargs); unknown names raise with a suggestion."""
+    accepted = [
+        name
+        for name in inspect.signature(algo_class.__init__).parameters
+        if name not in ("self", "policy", "env", "_init_setup_model")
+    ]
+    allowed = sorted(set(accepted) | set(HARNESS_KEYS))
+    harness, algo_kwargs = {}, {}
+    for key, value in hyperparams.items():
+        if key in HARNESS_KEYS:
+            harness[key] = value
+        elif key in accepted:
+            algo_kwargs[key] = value
+        else:
+            raise ConfigError(
+                f"unknown hyper-parameter {key!r} for {algo_class.__name__}{closest(key, allowed)}"
+                f"; allowed: {', '.join(allowed)}"
+            )
+    return harness, algo_kwargs

@@ -1,0 +1,235 @@
+"""Seeded evaluation of policies (trained or scripted) and the statistics reported for them.
+
+Every policy exposes SB3's ``predict(observation, state=None, episode_start=None,
+deterministic=True)`` for one unbatched observation; scripted ones may also have ``reset()``,
+called at each episode start. :data:`TASKS` says, per environment id, which figure is the
+headline, which split is held out and which scripted baseline a learner must beat.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from agents.grasp_baselines import ScriptedGrasp
+from agents.view_baselines import FourViewpointBaseline, GreedyOracle
+
+BOOTSTRAP_RESAMPLES = 10_000
+#: Evaluation seeds start here, away from the training (``seed``) and periodic-evaluation
+#: (``seed + PERIODIC_EVAL_SEED_OFFSET``) streams.
+FINAL_EVAL_SEED = 1_000_000
+
+
+@dataclass(frozen=True)
+class Task:
+    """What evaluating one environment means."""
+
+    metric: str  #: ``info`` key of the per-episode headline figure, read at the episode's end
+    metric_label: str
+    held_out_kwargs: Mapping  #: env kwargs selecting the held-out split
+    baseline: str
+    make_baseline: Callable
+    #: kwargs the baseline's env needs on top of the run's (e.g. the camera it reads)
+    baseline_env_kwargs: Mapping = field(default_factory=dict)
+    #: further ``info`` keys worth reporting, read at each episode's end
+    extra_metrics: tuple[str, ...] = ()
+    #: a privileged upper bound (ground truth), reported for scale, never a competitor
+    reference: str | None = None
+    make_reference: Callable | None = None
+
+
+TASKS = {
+    "ViewPlanning-v0": Task(
+        metric="coverage",
+        metric_label="final coverage",
+        held_out_kwargs={"object_set": "held_out"},
+        baseline="four-view",
+        make_baseline=FourViewpointBaseline,
+        extra_metrics=("is_success",),
+        reference="greedy-oracle",
+        make_reference=GreedyOracle,
+    ),
+    "InstrumentGrasp-v0": Task(
+        metric="is_success",
+        metric_label="success rate",
+        held_out_kwargs={"instrument_set": "held_out"},
+        baseline="scripted",
+        make_baseline=ScriptedGrasp,
+        baseline_env_kwargs={"obs_mode": "rgbd", "controller": "ee_delta"},
+        extra_metrics=("peak_force", "hard_limit_exceeded", "force_violations"),
+    ),
+}
+
+
+def task_for(env_id: str) -> Task:
+    if env_id not in TASKS:
+        raise ValueError(f"no evaluation task for {env_id!r}; known: {', '.join(TASKS)}")
+    return TASKS[env_id]
+
+
+def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
+    """``gym.make`` with the run's env kwargs. ViewPlanning-v0's registered time limit is the
+    default view budget, so a changed ``view_budget`` moves the limit with it."""
+    import gymnasium as gym
+
+    import liuxing_envs  # noqa: F401  (registers the ids)
+
+    env_kwargs = dict(env_kwargs or {})
+    if env_id == "ViewPlanning-v0" and "view_budget" in env_kwargs:
+        make_kwargs.setdefault("max_episode_steps", env_kwargs["view_budget"])
+    return gym.make(env_id, **make_kwargs, **env_kwargs)
+
+
+def compare_with_baseline(
+    env_id: str,
+    policy,
+    env_kwargs: Mapping,
+    episodes: int,
+    seed: int = FINAL_EVAL_SEED,
+    reference: bool = True,
+) -> dict:
+    """``policy``, the task's scripted baseline and (if ``reference`` and the task has one)
+    its privileged reference, on the same held-out seeded episodes."""
+    task = task_for(env_id)
+    held_out = {**env_kwargs, **task.held_out_kwargs}
+    seeds = range(seed, seed + episodes)
+    keys = (task.metric, *task.extra_metrics)
+
+    def evaluate(make_policy, extra_kwargs=None) -> dict:
+        env = make_env(env_id, {**held_out, **(extra_kwargs or {})})
+        try:
+            return summarize(run_episodes(env, make_policy(env), seeds, keys), task.metric)
+        finally:
+            env.close()
+
+    result = {
+        "env_id": env_id,
+        "split": dict(task.held_out_kwargs),
+        "metric": task.metric_label,
+        "seeds": [seeds.start, seeds.stop - 1],
+        "policy": evaluate(lambda env: policy),
+        "baseline": {
+            "name": task.baseline,
+            **evaluate(task.make_baseline, task.baseline_env_kwargs),
+        },
+    }
+    if reference and task.make_reference is not None:
+        result["reference"] = {"name": task.reference, **evaluate(task.make_reference)}
+    return result
+
+
+def format_comparison(result: dict) -> str:
+    policy, baseline = result["policy"], result["baseline"]
+    split = ", ".join(f"{k}={v}" for k, v in result["split"].items())
+    rows = [("trained policy", policy), (baseline["name"], baseline)]
+    if "reference" in result:
+        rows.append((f"{result['reference']['name']} (privileged)", result["reference"]))
+    lines = [f"{result['env_id']} ({split}), {policy['episodes']} episodes: {result['metric']}"]
+    for name, row in rows:
+        low, high = row["ci95"]
+        lines.append(f"  {name:<28} {row['mean']:.3f}  95% CI [{low:.3f}, {high:.3f}]")
+    lines.append(f"  {'policy - ' + baseline['name']:<28} {policy['mean'] - baseline['mean']:+.3f}")
+    return "\n".join(lines)
+
+
+def run_episodes(
+    env, policy, seeds: Iterable[int], keys: Iterable[str], deterministic: bool = True
+) -> list[dict]:
+    """One episode per seed; returns per episode its seed, return, length and the final
+    ``info`` values of ``keys``."""
+    keys = tuple(keys)
+    episodes = []
+    for seed in seeds:
+        observation, info = env.reset(seed=int(seed))
+        if hasattr(policy, "reset"):
+            policy.reset()
+        total, length, done = 0.0, 0, False
+        while not done:
+            action, _ = policy.predict(observation, deterministic=deterministic)
+            observation, reward, terminated, truncated, info = env.step(action)
+            total += float(reward)
+            length += 1
+            done = terminated or truncated
+        episode = {"seed": int(seed), "return": total, "length": length}
+        episode.update({key: _scalar(info[key]) for key in keys if key in info})
+        episodes.append(episode)
+    return episodes
+
+
+def _scalar(value):
+    value = np.asarray(value).item()
+    return bool(value) if isinstance(value, (bool, np.bool_)) else value
+
+
+def bootstrap_ci(values, seed: int = 0) -> tuple[float, float]:
+    """95% percentile-bootstrap confidence interval of the mean."""
+    values = np.asarray(values, dtype=float)
+    rng = np.random.default_rng(seed)
+    means = rng.choice(values, size=(BOOTSTRAP_RESAMPLES, len(values))).mean(axis=1)
+    low, high = np.percentile(means, [2.5, 97.5])
+    return float(low), float(high)
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a success rate."""
+    if trials == 0:
+        return 0.0, 1.0
+    p = successes / trials
+    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = (
+        z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
+    )
+    return centre - half, centre + half
+
+
+def summarize(episodes: list[dict], metric: str) -> dict:
+    """Mean and 95% CI of ``metric`` (Wilson for yes/no figures, bootstrap otherwise), plus
+    the mean return and the mean of every other recorded figure."""
+    values = [episode[metric] for episode in episodes]
+    binary = all(isinstance(value, bool) for value in values)
+    mean = float(np.mean(values))
+    if binary:
+        ci = wilson_interval(int(sum(values)), len(values))
+    else:
+        ci = bootstrap_ci(values)
+    summary = {
+        "episodes": len(episodes),
+        "metric": metric,
+        "mean": mean,
+        "ci95": list(ci),
+        "mean_return": float(np.mean([episode["return"] for episode in episodes])),
+    }
+    for key in episodes[0]:
+        if key not in ("seed", "return", "length", metric):
+            summary[f"mean_{key}"] = float(np.mean([episode[key] for episode in episodes]))
+    return summary
+
+
+class SB3Policy:
+    """A saved SB3 model (and its observation normaliser, if it was trained with one) as a
+    single-observation policy."""
+
+    def __init__(self, model, normalizer=None) -> None:
+        self.model = model
+        self.normalizer = normalizer
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
+        return self.model.predict(observation, state, episode_start, deterministic)
+
+    @classmethod
+    def load(cls, algo_class, model_path: Path, normalizer_path: Path | None, device="cpu"):
+        import pickle
+
+        model = algo_class.load(model_path, device=device)
+        normalizer = None
+        if normalizer_path is not None and Path(normalizer_path).is_file():
+            with open(normalizer_path, "rb") as handle:
+                normalizer = pickle.load(handle)
+            normalizer.training = False
+        return cls(model, normalizer)

@@ -1,0 +1,109 @@
+"""Policy parts for SB3: a features extractor sized for this suite's observations.
+
+SB3's default ``CombinedExtractor`` runs NatureCNN (built for 84x84 Atari frames; 1.7 M
+weights after its 64x64 flatten) on images and flattens everything else, so the 4096-cell
+occupancy map of ViewPlanning-v0 enters the MLP as 4096 unrelated inputs.
+:class:`PerceptionExtractor` instead uses
+
+- a small strided CNN per image key (depth/RGB, channel-first uint8, 64x64 by default),
+- a 3-D CNN on the ``map`` key (a G x G x G occupancy cube, indexed [x, y, z]),
+- the identity on every other (vector) key,
+
+and concatenates the results. Hyper-parameter files name it as
+``policy_kwargs: {features_extractor: perception}``; see :data:`FEATURES_EXTRACTORS`.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import torch
+from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, CombinedExtractor
+from torch import nn
+
+DEFAULT_IMAGE_FEATURES = 128
+DEFAULT_MAP_FEATURES = 128
+MAP_KEY = "map"
+
+
+def _output_size(module: nn.Module, shape: tuple[int, ...]) -> int:
+    with torch.no_grad():
+        return int(module(torch.zeros(1, *shape)).shape[1])
+
+
+class ImageEncoder(nn.Sequential):
+    """Three strided 3x3/5x5 convolutions and a linear layer: about 0.15 M weights at 64x64."""
+
+    def __init__(self, shape: tuple[int, ...], features: int) -> None:
+        channels = shape[0]
+        convs = nn.Sequential(
+            nn.Conv2d(channels, 16, kernel_size=5, stride=2),
+            nn.ReLU(),
+            nn.Conv2d(16, 32, kernel_size=3, stride=2),
+            nn.ReLU(),
+            nn.Conv2d(32, 32, kernel_size=3, stride=2),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+        super().__init__(convs, nn.Linear(_output_size(convs, shape), features), nn.ReLU())
+
+
+class OccupancyEncoder(nn.Module):
+    """A 3-D CNN over the flat G^3 occupancy map (G a multiple of 4)."""
+
+    def __init__(self, cells: int, features: int) -> None:
+        super().__init__()
+        grid = round(cells ** (1 / 3))
+        if grid**3 != cells:
+            raise ValueError(f"the {MAP_KEY!r} observation must hold G^3 cells, got {cells}")
+        self.grid = grid
+        convs = nn.Sequential(
+            nn.Conv3d(1, 8, kernel_size=3, stride=2, padding=1),
+            nn.ReLU(),
+            nn.Conv3d(8, 16, kernel_size=3, stride=2, padding=1),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+        self.net = nn.Sequential(
+            convs, nn.Linear(_output_size(convs, (1, grid, grid, grid)), features), nn.ReLU()
+        )
+
+    def forward(self, flat: torch.Tensor) -> torch.Tensor:
+        grid = self.grid
+        return self.net(flat.reshape(-1, 1, grid, grid, grid))
+
+
+class PerceptionExtractor(BaseFeaturesExtractor):
+    """Image CNNs, a 3-D occupancy CNN and pass-through vectors, concatenated (see module)."""
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Dict,
+        image_features: int = DEFAULT_IMAGE_FEATURES,
+        map_features: int = DEFAULT_MAP_FEATURES,
+        normalized_image: bool = False,
+    ) -> None:
+        encoders: dict[str, nn.Module] = {}
+        total = 0
+        for key, space in observation_space.spaces.items():
+            if is_image_space(space, normalized_image=normalized_image):
+                encoders[key] = ImageEncoder(space.shape, image_features)
+                total += image_features
+            elif key == MAP_KEY:
+                encoders[key] = OccupancyEncoder(int(np.prod(space.shape)), map_features)
+                total += map_features
+            else:
+                encoders[key] = nn.Flatten()
+                total += int(np.prod(space.shape))
+        super().__init__(observation_space, features_dim=total)
+        self.encoders = nn.ModuleDict(encoders)
+
+    def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        return torch.cat([encoder(observations[key]) for key, encoder in self.encoders.items()], 1)
+
+
+#: Names a hyper-parameter file may give as ``policy_kwargs.features_extractor``.
+FEATURES_EXTRACTORS = {"perception": PerceptionExtractor, "combined": CombinedExtractor}
+#: Names a hyper-parameter file may give as ``policy_kwargs.activation_fn``.
+ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}

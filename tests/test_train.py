@@ -1,0 +1,317 @@
+"""train.py and agents/: flag parsing, run folders, resume and interruption, end to end.
+
+The end-to-end tests run ``train.py`` as a subprocess (as users do) for a few hundred steps;
+they check what the run leaves behind, not what it learns (learning is measured by the
+benchmarks in the README)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+import train
+from agents import run_folder
+from agents.config import ConfigError, parse_assignments
+from agents.evaluation import make_env
+from agents.training import load_policy
+
+REPO = Path(__file__).resolve().parents[1]
+# Small, fast settings shared by every end-to-end run.
+QUICK = ["--eval-episodes", "2", "--final-episodes", "2", "--no-progress-bar"]
+QUICK_HYPERPARAMS = {
+    ("ViewPlanning-v0", "ppo"): ["n_steps=32", "batch_size=32", "n_epochs=2"],
+    ("ViewPlanning-v0", "sac"): ["buffer_size=2000", "learning_starts=32", "batch_size=16"],
+    ("InstrumentGrasp-v0", "ppo"): ["n_steps=64", "batch_size=64", "n_epochs=2"],
+    ("InstrumentGrasp-v0", "sac"): ["learning_starts=64", "batch_size=32"],
+}
+
+
+def run_train(*args: str, timeout: float = 600, check: bool = True):
+    result = subprocess.run(
+        [sys.executable, "train.py", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+    )
+    if check and result.returncode != 0:
+        raise AssertionError(f"train.py failed ({result.returncode}):\n{result.stderr[-3000:]}")
+    return result
+
+
+def quick_args(env_id: str, algo: str, run_dir: Path, steps: int, n_envs: int = 2) -> list[str]:
+    return [
+        *("--env", env_id, "--algo", algo, "-n", str(steps), "--n-envs", str(n_envs)),
+        *("--run-dir", str(run_dir), "--eval-freq", str(steps // 2)),
+        *("--save-freq", str(steps // 2), *QUICK),
+        *("--hyperparams", *QUICK_HYPERPARAMS[(env_id, algo)]),
+    ]
+
+
+# --- flags ------------------------------------------------------------------------------------
+
+
+def test_assignments_are_parsed_as_yaml_values_with_dotted_keys():
+    parsed = parse_assignments(
+        ["learning_rate=1e-4", "policy_kwargs.net_arch=[64, 64]", "normalize=true", "x=null"],
+        "--hyperparams",
+    )
+    assert parsed == {
+        "learning_rate": 1e-4,
+        "policy_kwargs": {"net_arch": [64, 64]},
+        "normalize": True,
+        "x": None,
+    }
+
+
+@pytest.mark.parametrize("item", ["learning_rate", "=3", "a=[1, 2", "a..b=1", "__import__('os')=1"])
+def test_malformed_assignments_are_refused(item):
+    with pytest.raises(ConfigError):
+        parse_assignments(["b.c=1", item], "--x")
+
+
+def test_a_python_expression_stays_a_string():
+    assert parse_assignments(["a=__import__('os').getcwd()"], "--x") == {
+        "a": "__import__('os').getcwd()"
+    }
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--env", "ViewPlaning-v0"], "did you mean 'ViewPlanning-v0'"),
+        (["--algo", "ppp"], "did you mean 'ppo'"),
+        (["--algo", "dqn"], "allowed: ppo, sac"),
+        (["--hyperparams", "learning_rat=1e-3"], "did you mean 'learning_rate'"),
+        (["--hyperparams", "learning_rate=[1e-3"], "cannot parse"),
+        (
+            ["--hyperparams", "policy_kwargs.features_extractor=percept"],
+            "did you mean 'perception'",
+        ),
+        (["--env-kwargs", "view_budgt=3"], "did you mean 'view_budget'"),
+        (["--vec-env", "subprocess"], "did you mean 'subproc'"),
+        (["-n", "0"], "timesteps must be an integer >= 1"),
+        (["--config", "no/such/file.yml"], "does not exist"),
+        (["--resume", "no/such/run"], "does not exist"),
+        (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
+        (["--device", "tpu"], "not a torch device"),
+        (["--timesteps", "many"], "invalid int value"),
+    ],
+)
+def test_bad_flags_exit_with_a_message_naming_the_problem(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(argv)
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
+    config = tmp_path / "ppo.yml"
+    config.write_text(yaml.safe_dump({"InstrumentGrasp-v0": {"n_timesteps": 10}}))
+    with pytest.raises(SystemExit):
+        train.main(["--config", str(config)])
+    assert (
+        "has no entry for 'ViewPlanning-v0'; it has: InstrumentGrasp-v0" in capsys.readouterr().err
+    )
+
+
+# --- end to end ------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", ["ViewPlanning-v0", "InstrumentGrasp-v0"])
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
+    run_dir = tmp_path / "run"
+    steps = 256 if env_id == "ViewPlanning-v0" else 512
+    result = run_train(*quick_args(env_id, algo, run_dir, steps))
+    assert "trained policy" in result.stdout
+
+    config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
+    assert (config["env_id"], config["algo"], config["seed"]) == (env_id, algo, 0)
+    assert config["versions"]["mujoco"] and config["versions"]["stable_baselines3"]
+    assert "git_commit" in config and config["command"].startswith("train.py")
+    for name in (run_folder.FINAL_MODEL, run_folder.BEST_MODEL, run_folder.LEARNING_CURVE):
+        assert (run_dir / name).stat().st_size > 0, name
+    assert run_folder.checkpoint_steps(run_dir)[-1] >= steps
+    evaluations = run_folder.read_evaluations(run_dir)
+    assert len(evaluations) >= 2 and evaluations[0]["timesteps"] >= steps // 2
+    comparison = json.loads((run_dir / run_folder.RESULT).read_text())["comparison"]
+    assert comparison["policy"]["episodes"] == comparison["baseline"]["episodes"] == 2
+    assert 0.0 <= comparison["policy"]["mean"] <= 1.0
+    normalised = config["normalize"]
+    assert (run_dir / run_folder.FINAL_NORMALIZER).is_file() == normalised
+    if algo == "sac":
+        newest = run_folder.checkpoint_paths(run_dir, run_folder.checkpoint_steps(run_dir)[-1])
+        assert newest["replay_buffer"].is_file()
+
+    # A shipped copy is a slim run folder that loads and acts on its own.
+    shipped = run_folder.ship(run_dir, tmp_path / "shipped")
+    assert not (shipped / run_folder.CHECKPOINTS).exists()
+    policy = load_policy(shipped)
+    assert (policy.normalizer is not None) == normalised
+    env = make_env(env_id, config["env_kwargs"])
+    observation, _ = env.reset(seed=0)
+    action, _ = policy.predict(observation, deterministic=True)
+    assert env.action_space.contains(action)
+    env.close()
+
+
+@pytest.mark.slow
+def test_overrides_reach_the_model_and_the_env(tmp_path):
+    from stable_baselines3 import PPO
+
+    run_dir = tmp_path / "run"
+    run_train(
+        *quick_args("ViewPlanning-v0", "ppo", run_dir, 128),
+        *("learning_rate=1e-3", "policy_kwargs.net_arch=[32]"),
+        *("--env-kwargs", "view_budget=3", "--seed", "7", "--final-episodes", "0"),
+    )
+    model = PPO.load(run_dir / run_folder.FINAL_MODEL)
+    assert model.learning_rate == pytest.approx(1e-3)
+    assert model.policy.net_arch == [32]
+    assert model.observation_space["view_history"].shape == (3 * 5,)
+    config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
+    assert config["seed"] == 7 and config["env_kwargs"]["view_budget"] == 3
+    # Episodes last the changed budget, not the registered default of 4.
+    lengths = [
+        int(line.split(",")[1])
+        for path in (run_dir / run_folder.MONITOR).glob("*.csv")
+        for line in path.read_text().splitlines()[2:]
+    ]
+    assert lengths and set(lengths) == {3}
+
+
+@pytest.mark.slow
+def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
+    from stable_baselines3 import SAC
+
+    run_dir = tmp_path / "run"
+    args = quick_args("ViewPlanning-v0", "sac", run_dir, 128, n_envs=1)
+    run_train(*args, "--final-episodes", "0")
+    first = SAC.load(run_folder.checkpoint_paths(run_dir, 128)["model"])
+    assert first.num_timesteps == 128
+
+    run_train("--resume", str(run_dir), "-n", "256", "--final-episodes", "0", "--no-progress-bar")
+    config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
+    assert config["resumed_from_steps"] == 128 and config["n_timesteps"] == 256
+    final = SAC.load(run_dir / run_folder.FINAL_MODEL)
+    assert final.num_timesteps == 256
+    # Training went on from the saved weights: they moved, but not back to a fresh start.
+    before = first.policy.state_dict()["actor.mu.weight"]
+    after = final.policy.state_dict()["actor.mu.weight"]
+    assert not np.allclose(before, after)
+    final.load_replay_buffer(run_folder.checkpoint_paths(run_dir, 256)["replay_buffer"])
+    assert final.replay_buffer.size() == 256  # the first 128 transitions were kept
+    timesteps = [row["timesteps"] for row in run_folder.read_evaluations(run_dir)]
+    assert timesteps == sorted(timesteps) and timesteps[-1] == 256 and len(timesteps) >= 3
+
+
+@pytest.mark.slow
+def test_resuming_a_finished_run_needs_more_steps(tmp_path):
+    run_dir = tmp_path / "run"
+    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    result = run_train("--resume", str(run_dir), check=False)
+    assert result.returncode == 2
+    assert "pass a larger --timesteps" in result.stderr
+
+
+@pytest.mark.slow
+def test_ctrl_c_saves_a_checkpoint_that_resume_continues(tmp_path):
+    run_dir = tmp_path / "run"
+    process = subprocess.Popen(
+        [
+            sys.executable, "train.py",
+            *quick_args("ViewPlanning-v0", "ppo", run_dir, 100_000),
+            "--save-freq", "0", "--eval-freq", "0",
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    deadline = time.monotonic() + 300
+    # Wait until training has completed a few episodes, then interrupt as Ctrl-C would.
+    while time.monotonic() < deadline and process.poll() is None:
+        monitors = list((run_dir / run_folder.MONITOR).glob("*.csv"))
+        if sum(len(p.read_text().splitlines()) for p in monitors) > 40:
+            break
+        time.sleep(0.5)
+    process.send_signal(signal.SIGINT)
+    stdout, _ = process.communicate(timeout=120)
+    assert process.returncode == 130
+    assert "checkpoint saved" in stdout
+    steps = run_folder.latest_checkpoint(run_dir)
+    assert steps is not None and steps > 0
+
+    run_train("--resume", str(run_dir), "-n", str(steps + 64), "--final-episodes", "0")
+    assert run_folder.latest_checkpoint(run_dir) >= steps + 64
+
+
+# --- policy parts ----------------------------------------------------------------------------
+
+
+def test_perception_extractor_encodes_every_observation_key():
+    import gymnasium as gym
+    import torch
+
+    import liuxing_envs  # noqa: F401
+    from agents.policies import ImageEncoder, OccupancyEncoder, PerceptionExtractor
+
+    env = gym.make("ViewPlanning-v0")
+    extractor = PerceptionExtractor(env.observation_space, image_features=32, map_features=16)
+    assert isinstance(extractor.encoders["depth"], ImageEncoder)
+    assert isinstance(extractor.encoders["map"], OccupancyEncoder)
+    vectors = 1 + 9 + 20  # budget, camera_pose, view_history
+    assert extractor.features_dim == 32 + 16 + vectors
+    observation, _ = env.reset(seed=0)
+    batch = {key: torch.as_tensor(value[None]).float() for key, value in observation.items()}
+    features = extractor(batch)
+    assert features.shape == (1, extractor.features_dim)
+    # The map's 3-D layout matters: moving occupied cells changes the encoding.
+    shifted = dict(batch, map=torch.roll(batch["map"], 16 * 16, dims=1))
+    assert not torch.allclose(extractor(shifted), features)
+    env.close()
+
+
+@pytest.mark.parametrize(
+    "env_id, env_kwargs",
+    [
+        ("ViewPlanning-v0", {"action_mode": "discrete"}),
+        ("ViewPlanning-v0", {"action_mode": "continuous"}),
+        ("InstrumentGrasp-v0", {"obs_mode": "state"}),
+        ("InstrumentGrasp-v0", {"obs_mode": "depth"}),
+        ("InstrumentGrasp-v0", {"obs_mode": "rgbd"}),
+    ],
+)
+@pytest.mark.parametrize("extractor", ["combined", "perception"])
+def test_every_observation_preset_trains_with_multi_input_policy(env_id, env_kwargs, extractor):
+    from stable_baselines3 import PPO
+
+    from agents.training import policy_kwargs
+
+    env = make_env(env_id, env_kwargs)
+    model = PPO(
+        "MultiInputPolicy",
+        env,
+        n_steps=8,
+        batch_size=8,
+        n_epochs=1,
+        seed=0,
+        policy_kwargs=policy_kwargs({"features_extractor": extractor}),
+    )
+    model.learn(8)
+    observation, _ = env.reset(seed=1)
+    action, _ = model.predict(observation, deterministic=True)
+    assert env.action_space.contains(action)
+    env.close()

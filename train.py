@@ -1,0 +1,136 @@
+"""Train PPO or SAC on a liuxing_envs environment.
+
+    python train.py                                   # ViewPlanning-v0, PPO, a few minutes
+    python train.py --env InstrumentGrasp-v0 --algo sac --seed 1 -n 300000
+    python train.py --algo ppo --hyperparams learning_rate=1e-4 policy_kwargs.net_arch=[64,64]
+    python train.py --env-kwargs view_budget=6 --eval-freq 2000
+    python train.py --resume runs/ViewPlanning-v0/ppo_seed0_20261121-101500 [-n 50000]
+
+Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id) or --config; each
+run writes a folder (see agents/run_folder.py) with its resolved config, models, checkpoints,
+evaluation history and learning curve. Ctrl-C saves a checkpoint that --resume continues.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+from agents.config import ConfigError, parse_assignments  # noqa: E402
+from agents.run_folder import RunFolderError  # noqa: E402
+
+#: Flags that define a run; a resumed run keeps the values in its config.yml.
+RUN_DEFINING_FLAGS = (
+    "env", "algo", "seed", "n_envs", "vec_env", "config", "hyperparams", "env_kwargs",
+    "eval_freq", "eval_episodes", "save_freq", "run_dir", "tensorboard",
+)  # fmt: skip
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="train.py",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="\n\n".join(__doc__.split("\n\n")[1:]),
+    )
+    run = parser.add_argument_group("what to train")
+    run.add_argument("--env", help="environment id (default: ViewPlanning-v0)")
+    run.add_argument("--algo", help="ppo or sac (default: ppo)")
+    run.add_argument("-n", "--timesteps", type=int, help="total env steps (default: from YAML)")
+    run.add_argument("--seed", type=int, help="random seed (default: 0)")
+    run.add_argument("--n-envs", type=int, help="parallel training envs (default: from YAML)")
+    run.add_argument("--vec-env", help="dummy (one process) or subproc (default: dummy)")
+    run.add_argument("--config", metavar="FILE", help="hyper-parameter YAML to use instead")
+    run.add_argument(
+        "--hyperparams", nargs="+", metavar="KEY=VALUE", help="override hyper-parameters"
+    )
+    run.add_argument("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="gym.make kwargs")
+    run.add_argument("--device", help="torch device: auto, cpu, cuda, cuda:N (default: auto)")
+    run.add_argument("--torch-threads", type=int, help="torch CPU threads (default: 1)")
+    logs = parser.add_argument_group("evaluation, checkpoints and logs")
+    logs.add_argument("--eval-freq", type=int, help="env steps between evaluations (0: none)")
+    logs.add_argument("--eval-episodes", type=int, help="episodes per periodic evaluation")
+    logs.add_argument("--save-freq", type=int, help="env steps between checkpoints (0: none)")
+    logs.add_argument(
+        "--final-episodes", type=int, help="held-out episodes of the final comparison (0: skip)"
+    )
+    logs.add_argument(
+        "--run-dir", help="the run's folder (default: LOG_FOLDER/ENV/ALGO_seedS_TIME)"
+    )
+    logs.add_argument("-f", "--log-folder", default="runs", help="parent of new run folders")
+    logs.add_argument("--tensorboard", action="store_true", default=None, help="TensorBoard logs")
+    logs.add_argument(
+        "--progress-bar",
+        action=argparse.BooleanOptionalAction,
+        default=sys.stdout.isatty(),
+        help="show a progress bar (default: on when writing to a terminal)",
+    )
+    logs.add_argument("--resume", metavar="RUN_DIR", help="continue a run from its last checkpoint")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
+    from agents import training
+
+    try:
+        if args.resume:
+            given = [
+                f"--{name.replace('_', '-')}"
+                for name in RUN_DEFINING_FLAGS
+                if getattr(args, name) is not None
+            ]
+            if given:
+                parser.error(f"{', '.join(given)} cannot be changed when resuming a run")
+            training.resume(
+                args.resume,
+                n_timesteps=args.timesteps,
+                progress_bar=args.progress_bar,
+                device=args.device,
+                final_episodes=args.final_episodes,
+                torch_threads=args.torch_threads,
+            )
+            return 0
+        config = training.resolve_config(
+            **_given(
+                env_id=args.env,
+                algo=args.algo,
+                config_file=args.config,
+                hyperparams=parse_assignments(args.hyperparams, "--hyperparams"),
+                env_kwargs=parse_assignments(args.env_kwargs, "--env-kwargs"),
+                seed=args.seed,
+                n_timesteps=args.timesteps,
+                n_envs=args.n_envs,
+                vec_env=args.vec_env,
+                eval_freq=args.eval_freq,
+                eval_episodes=args.eval_episodes,
+                save_freq=args.save_freq,
+                final_episodes=args.final_episodes,
+                device=args.device,
+                tensorboard=args.tensorboard,
+                torch_threads=args.torch_threads,
+            )
+        )
+        run_dir = args.run_dir or training.new_run_dir(config, args.log_folder)
+        print(f"run folder: {run_dir}", flush=True)
+        training.train(config, run_dir, progress_bar=args.progress_bar)
+    except (ConfigError, RunFolderError) as error:
+        parser.error(str(error))
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+def _given(**kwargs) -> dict:
+    """Only the flags the user gave, so resolve_config's defaults apply to the rest."""
+    return {key: value for key, value in kwargs.items() if value is not None}
+
+
+if __name__ == "__main__":
+    sys.exit(main())
