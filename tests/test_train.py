@@ -227,7 +227,8 @@ def test_resuming_a_finished_run_needs_more_steps(tmp_path):
 
 
 @pytest.mark.slow
-def test_ctrl_c_saves_a_checkpoint_that_resume_continues(tmp_path):
+@pytest.mark.parametrize("interrupt", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupt_saves_a_checkpoint_that_resume_continues(interrupt, tmp_path):
     run_dir = tmp_path / "run"
     process = subprocess.Popen(
         [
@@ -247,7 +248,7 @@ def test_ctrl_c_saves_a_checkpoint_that_resume_continues(tmp_path):
         if sum(len(p.read_text().splitlines()) for p in monitors) > 40:
             break
         time.sleep(0.5)
-    process.send_signal(signal.SIGINT)
+    process.send_signal(interrupt)
     stdout, _ = process.communicate(timeout=120)
     assert process.returncode == 130
     assert "checkpoint saved" in stdout
@@ -315,3 +316,15 @@ def test_every_observation_preset_trains_with_multi_input_policy(env_id, env_kwa
     action, _ = model.predict(observation, deterministic=True)
     assert env.action_space.contains(action)
     env.close()
+
+
+@pytest.mark.slow
+def test_the_shipped_view_planning_policy_beats_the_four_view_baseline():
+    from agents.evaluation import compare_with_baseline
+
+    shipped = REPO / "policies" / "ViewPlanning-v0" / "ppo"
+    config = run_folder.read_config(shipped)
+    result = compare_with_baseline(
+        "ViewPlanning-v0", load_policy(shipped), config["env_kwargs"], 20, reference=False
+    )
+    assert result["policy"]["mean"] > result["baseline"]["mean"] + 0.03
