@@ -9,6 +9,7 @@ headline, which split is held out and which scripted baseline a learner must bea
 from __future__ import annotations
 
 import math
+import pickle
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -224,8 +225,6 @@ class SB3Policy:
 
     @classmethod
     def load(cls, algo_class, model_path: Path, normalizer_path: Path | None, device="cpu"):
-        import pickle
-
         model = algo_class.load(model_path, device=device)
         normalizer = None
         if normalizer_path is not None and Path(normalizer_path).is_file():

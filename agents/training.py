@@ -17,9 +17,11 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
+from gymnasium.envs.registration import load_env_creator
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 import liuxing_envs
@@ -97,11 +99,11 @@ def resolve_config(
     config = {
         "env_id": env_id,
         "algo": algo,
-        "seed": _positive_int("seed", seed, minimum=0),
-        "n_timesteps": _positive_int(
+        "seed": _int_at_least("seed", seed, minimum=0),
+        "n_timesteps": _int_at_least(
             "timesteps", n_timesteps if n_timesteps is not None else harness.get("n_timesteps")
         ),
-        "n_envs": _positive_int(
+        "n_envs": _int_at_least(
             "n-envs", n_envs if n_envs is not None else harness.get("n_envs", 1)
         ),
         "vec_env": vec_env,
@@ -109,19 +111,19 @@ def resolve_config(
         "normalize": bool(harness.get("normalize", False)),
         "env_kwargs": merged_env_kwargs,
         "hyperparams": algo_kwargs,
-        "eval_freq": _positive_int("eval-freq", eval_freq, minimum=0),
-        "eval_episodes": _positive_int("eval-episodes", eval_episodes),
-        "save_freq": _positive_int("save-freq", save_freq, minimum=0),
-        "final_episodes": _positive_int("final-episodes", final_episodes, minimum=0),
+        "eval_freq": _int_at_least("eval-freq", eval_freq, minimum=0),
+        "eval_episodes": _int_at_least("eval-episodes", eval_episodes),
+        "save_freq": _int_at_least("save-freq", save_freq, minimum=0),
+        "final_episodes": _int_at_least("final-episodes", final_episodes, minimum=0),
         "device": check_device(device),
         "tensorboard": bool(tensorboard),
-        "torch_threads": _positive_int("torch-threads", torch_threads),
+        "torch_threads": _int_at_least("torch-threads", torch_threads),
     }
     policy_kwargs(config["hyperparams"].get("policy_kwargs"))  # fails early on bad names
     return config
 
 
-def _positive_int(name: str, value, minimum: int = 1) -> int:
+def _int_at_least(name: str, value, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
@@ -129,9 +131,7 @@ def _positive_int(name: str, value, minimum: int = 1) -> int:
 
 def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
     """Unknown keyword names fail here, with a suggestion; values are checked by the env."""
-    entry_point = gym.spec(env_id).entry_point
-    module_name, class_name = entry_point.split(":")
-    env_class = getattr(__import__(module_name, fromlist=[class_name]), class_name)
+    env_class = load_env_creator(gym.spec(env_id).entry_point)
     accepted = [
         name
         for name, parameter in inspect.signature(env_class.__init__).parameters.items()
@@ -214,8 +214,6 @@ def build_vec_env(config: dict, run_dir: Path) -> gym.Env:
 
 def vector_keys(space: gym.spaces.Space) -> list[str]:
     """Keys of a Dict space that are normalised: vectors, never images."""
-    from stable_baselines3.common.preprocessing import is_image_space
-
     return [key for key, sub in space.spaces.items() if not is_image_space(sub)]
 
 
@@ -236,50 +234,58 @@ def save_checkpoint(model, run_dir: Path) -> int:
     return steps
 
 
-class PeriodicCheckpoint(BaseCallback):
-    def __init__(self, run_dir: Path, every: int) -> None:
+class _Periodic(BaseCallback):
+    """Calls :meth:`act` each time the step counter passes a multiple of ``every`` (SB3
+    counts ``n_envs`` steps per call, so exact multiples are rarely hit)."""
+
+    def __init__(self, every: int) -> None:
         super().__init__()
-        self.run_dir, self.every = run_dir, every
-        self.next_at = None
+        self.every = every
+        self.next_at = every
 
     def _on_training_start(self) -> None:
-        self.next_at = (self.num_timesteps // self.every + 1) * self.every
+        self._schedule()
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self.next_at:
-            save_checkpoint(self.model, self.run_dir)
-            self.next_at += self.every * max(
-                1, (self.num_timesteps - self.next_at) // self.every + 1
-            )
+            self.act()
+            self._schedule()
         return True
 
+    def _schedule(self) -> None:
+        self.next_at = (self.num_timesteps // self.every + 1) * self.every
 
-class PeriodicEvaluation(BaseCallback):
+    def act(self) -> None:
+        raise NotImplementedError
+
+
+class PeriodicCheckpoint(_Periodic):
+    def __init__(self, run_dir: Path, every: int) -> None:
+        super().__init__(every)
+        self.run_dir = run_dir
+
+    def act(self) -> None:
+        save_checkpoint(self.model, self.run_dir)
+
+
+class PeriodicEvaluation(_Periodic):
     """Evaluates the current policy on its own env every ``every`` steps, appends a row to
-    ``evaluations.csv`` and keeps the best model (by mean return) as ``best_model.zip``."""
+    ``evaluations.csv`` and keeps the best model (by mean return) as ``best_model.zip``.
+    The caller closes :attr:`env`."""
 
     def __init__(self, config: dict, run_dir: Path, every: int) -> None:
-        super().__init__()
-        self.config, self.run_dir, self.every = config, run_dir, every
+        super().__init__(every)
+        self.run_dir = run_dir
         self.task = task_for(config["env_id"])
         self.env = make_env(config["env_id"], config["env_kwargs"])
-        self.seeds = range(
-            config["seed"] + PERIODIC_EVAL_SEED_OFFSET,
-            config["seed"] + PERIODIC_EVAL_SEED_OFFSET + config["eval_episodes"],
-        )
+        first_seed = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
+        self.seeds = range(first_seed, first_seed + config["eval_episodes"])
         history = run_folder.read_evaluations(run_dir)
         self.best = max((row["mean_return"] for row in history), default=-np.inf)
-        self.next_at = None
         self.started = time.perf_counter()
 
-    def _on_training_start(self) -> None:
-        self.next_at = (self.num_timesteps // self.every + 1) * self.every
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self.next_at:
-            self.evaluate()
-            self.next_at = (self.num_timesteps // self.every + 1) * self.every
-        return True
+    def act(self) -> None:
+        self.evaluate()
 
     def evaluate(self) -> dict:
         policy = SB3Policy(self.model, self.model.get_vec_normalize_env())
@@ -302,9 +308,6 @@ class PeriodicEvaluation(BaseCallback):
             if normalizer is not None:
                 normalizer.save(str(self.run_dir / run_folder.BEST_NORMALIZER))
         return row
-
-    def _on_training_end(self) -> None:
-        self.env.close()
 
 
 # --- runs ------------------------------------------------------------------------------------
@@ -355,7 +358,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     if steps is None:
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no checkpoint to resume from")
     if n_timesteps is not None:
-        config["n_timesteps"] = _positive_int("timesteps", n_timesteps)
+        config["n_timesteps"] = _int_at_least("timesteps", n_timesteps)
     for key, value in overrides.items():
         if value is not None:
             config[key] = value
