@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run demo test install clean
+.PHONY: run demo report test install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -29,6 +29,10 @@ install: $(VENV)/.installed
 # The default run: PPO on ViewPlanning-v0, then its held-out score against the four-view baseline.
 run: $(VENV)/.installed
 	$(BIN)/python train.py
+
+# The committed evaluation report of the shipped policies (reports/shipped/report.md).
+report: $(VENV)/.installed
+	$(BIN)/python evaluate.py $(patsubst %/config.yml,%,$(sort $(wildcard policies/*/*/config.yml))) --out reports/shipped --save-reconstructions 1 --video
 
 demo: $(VENV)/.installed
 	$(BIN)/python -m liuxing_envs.demo --out outputs/demo

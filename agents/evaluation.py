@@ -8,7 +8,7 @@ headline, which split is held out and which scripted baseline a learner must bea
 
 from __future__ import annotations
 
-import math
+import numbers
 import pickle
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from agents.grasp_baselines import ScriptedGrasp
+from agents.statistics import bootstrap_ci, wilson_interval
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle
 
-BOOTSTRAP_RESAMPLES = 10_000
 #: Evaluation seeds start here, away from the training (``seed``) and periodic-evaluation
 #: (``seed + PERIODIC_EVAL_SEED_OFFSET``) streams.
 FINAL_EVAL_SEED = 1_000_000
@@ -58,10 +58,15 @@ TASKS = {
         metric="is_success",
         metric_label="success rate",
         held_out_kwargs={"instrument_set": "held_out"},
-        baseline="scripted",
+        baseline="scripted-grasp",
         make_baseline=ScriptedGrasp,
-        baseline_env_kwargs={"obs_mode": "rgbd", "controller": "ee_delta"},
-        extra_metrics=("peak_force", "hard_limit_exceeded", "force_violations"),
+        baseline_env_kwargs=ScriptedGrasp.ENV_KWARGS,
+        extra_metrics=(
+            "peak_force",
+            "hard_limit_exceeded",
+            "force_violations",
+            "impact_violations",
+        ),
     ),
 }
 
@@ -138,16 +143,25 @@ def format_comparison(result: dict) -> str:
 
 
 def run_episodes(
-    env, policy, seeds: Iterable[int], keys: Iterable[str], deterministic: bool = True
+    env,
+    policy,
+    seeds: Iterable[int],
+    keys: Iterable[str],
+    deterministic: bool = True,
+    recorder=None,
+    on_episode: Callable[[], None] | None = None,
 ) -> list[dict]:
-    """One episode per seed; returns per episode its seed, return, length and the final
-    ``info`` values of ``keys``."""
+    """One episode per seed; returns per episode its seed, return, length, the final
+    ``info`` values of ``keys`` and what ``recorder`` (see :mod:`agents.recorders`) adds.
+    ``on_episode`` is called after each episode (a progress bar's update)."""
     keys = tuple(keys)
     episodes = []
-    for seed in seeds:
+    for index, seed in enumerate(seeds):
         observation, info = env.reset(seed=int(seed))
         if hasattr(policy, "reset"):
             policy.reset()
+        if recorder is not None:
+            recorder.begin(env, info)
         total, length, done = 0.0, 0, False
         while not done:
             action, _ = policy.predict(observation, deterministic=deterministic)
@@ -155,36 +169,21 @@ def run_episodes(
             total += float(reward)
             length += 1
             done = terminated or truncated
+            if recorder is not None:
+                recorder.step(env, float(reward), info)
         episode = {"seed": int(seed), "return": total, "length": length}
         episode.update({key: _scalar(info[key]) for key in keys if key in info})
+        if recorder is not None:
+            episode.update(recorder.end(env, index, int(seed)))
         episodes.append(episode)
+        if on_episode is not None:
+            on_episode()
     return episodes
 
 
 def _scalar(value):
     value = np.asarray(value).item()
     return bool(value) if isinstance(value, (bool, np.bool_)) else value
-
-
-def bootstrap_ci(values, seed: int = 0) -> tuple[float, float]:
-    """95% percentile-bootstrap confidence interval of the mean."""
-    values = np.asarray(values, dtype=float)
-    rng = np.random.default_rng(seed)
-    means = rng.choice(values, size=(BOOTSTRAP_RESAMPLES, len(values))).mean(axis=1)
-    low, high = np.percentile(means, [2.5, 97.5])
-    return float(low), float(high)
-
-
-def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
-    """95% Wilson score interval of a success rate."""
-    if trials == 0:
-        return 0.0, 1.0
-    p = successes / trials
-    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
-    half = (
-        z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
-    )
-    return centre - half, centre + half
 
 
 def summarize(episodes: list[dict], metric: str) -> dict:
@@ -205,8 +204,12 @@ def summarize(episodes: list[dict], metric: str) -> dict:
         "mean_return": float(np.mean([episode["return"] for episode in episodes])),
     }
     for key in episodes[0]:
-        if key not in ("seed", "return", "length", metric):
-            summary[f"mean_{key}"] = float(np.mean([episode[key] for episode in episodes]))
+        values = [episode.get(key) for episode in episodes]
+        if key in ("seed", "return", "length", metric) or not all(
+            isinstance(value, numbers.Real) for value in values
+        ):
+            continue
+        summary[f"mean_{key}"] = float(np.mean(values))
     return summary
 
 

@@ -173,12 +173,14 @@ class ScriptedGrasp:
     """Detect the red handle, approach aligned with it, close to a gentle force, lift, hold."""
 
     squeeze = False
+    #: The env kwargs it needs: it reads the colour image and moves the tool centre.
+    ENV_KWARGS = {"obs_mode": "rgbd", "controller": "ee_delta"}
 
     def __init__(self, env, grip_force: float = DEFAULT_GRIP_FORCE) -> None:
         env = env.unwrapped
         if env.obs_mode != "rgbd" or env.controller != "ee_delta":
             raise ValueError(
-                f"{type(self).__name__} needs obs_mode='rgbd' and controller='ee_delta', got "
+                f"{type(self).__name__} needs {self.ENV_KWARGS}, got "
                 f"obs_mode={env.obs_mode!r}, controller={env.controller!r}"
             )
         if not 0.0 < grip_force:
@@ -333,7 +335,7 @@ def _nearest_equivalent_yaw(handle_yaw: float, yaw: float) -> float:
 
 
 GRASP_BASELINES = {
-    "scripted": ScriptedGrasp,
+    "scripted-grasp": ScriptedGrasp,
     "squeeze": Squeeze,
     "random": RandomGrasp,
 }

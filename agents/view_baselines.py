@@ -77,7 +77,7 @@ class UniformViews(_ViewSequencePolicy):
 
 
 class RandomViews:
-    def __init__(self, env, seed: int | None = None) -> None:
+    def __init__(self, env, seed: int | None = 0) -> None:
         self.env = env.unwrapped
         self.action_space = self.env.action_space
         self.action_space.seed(seed)

@@ -20,8 +20,8 @@ import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 import liuxing_envs  # noqa: E402, F401
-from agents.evaluation import wilson_interval  # noqa: E402
 from agents.grasp_baselines import GRASP_BASELINES  # noqa: E402
+from agents.statistics import wilson_interval  # noqa: E402
 
 
 def run(baseline: str, episodes: int, instrument_set: str) -> dict:

@@ -15,7 +15,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from agents.evaluation import bootstrap_ci  # noqa: E402
+from agents.statistics import bootstrap_ci  # noqa: E402
 from agents.view_baselines import BASELINES  # noqa: E402
 from liuxing_envs.envs.view_planning import ViewPlanningEnv  # noqa: E402
 

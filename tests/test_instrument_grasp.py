@@ -89,6 +89,17 @@ def test_reward_terms_sum_to_reward_and_seeds_repeat():
         np.testing.assert_array_equal(p1, p2)
 
 
+@pytest.mark.parametrize("sharpness", [10.0, 3.0])
+def test_reach_term_follows_its_sharpness(sharpness):
+    env = InstrumentGraspEnv(reach_sharpness=sharpness)
+    observation, _ = env.reset(seed=4)
+    observation, _, _, _, info = env.step(np.zeros(5, dtype=np.float32))
+    distance = np.linalg.norm(observation["proprio"][12:15] - observation["instrument"][:3])
+    assert distance > 0.25  # the ready pose is far above the tray
+    assert info["reward_reach"] == pytest.approx(1.0 - np.tanh(sharpness * distance), abs=1e-6)
+    env.close()
+
+
 def test_scripted_grasp_lifts_gently_and_squeeze_breaks_the_limit():
     env = gym.make("InstrumentGrasp-v0", obs_mode="rgbd")
     for seed in (0, 11):
@@ -197,6 +208,7 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
         ({"mass_range": (2.0, 1.0)}, "mass_range"),
         ({"resolution": 64.5}, "resolution"),
         ({"terminate_on_success": "yes"}, "terminate_on_success"),
+        ({"reach_sharpness": 0.0}, "reach_sharpness"),
     ],
 )
 def test_bad_kwargs_name_the_argument(kwargs, message):

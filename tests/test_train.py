@@ -7,7 +7,6 @@ benchmarks in the README)."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -23,8 +22,8 @@ from agents import run_folder
 from agents.config import ConfigError, parse_assignments
 from agents.evaluation import make_env
 from agents.training import load_policy
+from tests.scripts import REPO, run_script
 
-REPO = Path(__file__).resolve().parents[1]
 # Small, fast settings shared by every end-to-end run.
 QUICK = ["--eval-episodes", "2", "--final-episodes", "2", "--no-progress-bar"]
 QUICK_HYPERPARAMS = {
@@ -36,17 +35,7 @@ QUICK_HYPERPARAMS = {
 
 
 def run_train(*args: str, timeout: float = 600, check: bool = True):
-    result = subprocess.run(
-        [sys.executable, "train.py", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
-    )
-    if check and result.returncode != 0:
-        raise AssertionError(f"train.py failed ({result.returncode}):\n{result.stderr[-3000:]}")
-    return result
+    return run_script("train.py", *args, timeout=timeout, check=check)
 
 
 def quick_args(env_id: str, algo: str, run_dir: Path, steps: int, n_envs: int = 2) -> list[str]:

@@ -51,6 +51,9 @@ DEFAULT_HARD_LIMIT_FACTOR = 3.0
 DEFAULT_IMPACT_LIMIT = 10.0  # N, contact force on the instrument from anything but the pads
 DEFAULT_TARGET_HEIGHT = 0.10  # m of lift
 DEFAULT_HOLD_TIME = 1.0  # s
+#: Steepness of the reach term (1/m): 10 pays 0.24 at 10 cm and almost nothing beyond 30 cm
+#: (the ready pose is ~32 cm from the grasp point); 3 still pays 0.26 there.
+DEFAULT_REACH_SHARPNESS = 10.0
 DEFAULT_FORCE_PENALTY = 0.2  # reward per newton above the limit, per pad
 DEFAULT_IMPACT_PENALTY = 0.05  # reward per newton above the impact limit
 DEFAULT_FAILURE_PENALTY = 5.0
@@ -141,7 +144,8 @@ class InstrumentGraspEnv(gym.Env):
 
     **Reward**: the sum of these terms, each in ``info``:
 
-    - ``reward_reach`` = 1 - tanh(10 d), d = distance tool centre to grasp point (m);
+    - ``reward_reach`` = 1 - tanh(``reach_sharpness`` d), d = distance tool centre to grasp
+      point (m), ``reach_sharpness`` 10/m by default;
     - ``reward_grasp`` = 1 while both pads touch the instrument with >= 0.5 N each;
     - ``reward_lift`` = 2 min(1, lift / ``target_height``) while grasped;
     - ``reward_hold`` = 1 while grasped at the target height;
@@ -195,6 +199,7 @@ class InstrumentGraspEnv(gym.Env):
         impact_limit: float = DEFAULT_IMPACT_LIMIT,
         target_height: float = DEFAULT_TARGET_HEIGHT,
         hold_time: float = DEFAULT_HOLD_TIME,
+        reach_sharpness: float = DEFAULT_REACH_SHARPNESS,
         force_penalty: float = DEFAULT_FORCE_PENALTY,
         impact_penalty: float = DEFAULT_IMPACT_PENALTY,
         failure_penalty: float = DEFAULT_FAILURE_PENALTY,
@@ -221,6 +226,7 @@ class InstrumentGraspEnv(gym.Env):
             ("impact_limit", impact_limit, 0.1, 1000.0),
             ("target_height", target_height, 0.01, 0.2),
             ("hold_time", hold_time, 0.0, 10.0),
+            ("reach_sharpness", reach_sharpness, 0.1, 100.0),
             ("force_penalty", force_penalty, 0.0, 100.0),
             ("impact_penalty", impact_penalty, 0.0, 100.0),
             ("failure_penalty", failure_penalty, 0.0, 1000.0),
@@ -258,6 +264,7 @@ class InstrumentGraspEnv(gym.Env):
         self.impact_limit, self.target_height = impact_limit, target_height
         self.hard_impact_limit = impact_limit * hard_limit_factor
         self.hold_steps = round(hold_time * control_hz)
+        self.reach_sharpness = float(reach_sharpness)
         self.force_penalty, self.impact_penalty = force_penalty, impact_penalty
         self.failure_penalty = failure_penalty
         self.terminate_on_success = bool(terminate_on_success)
@@ -382,7 +389,7 @@ class InstrumentGraspEnv(gym.Env):
 
         distance = np.linalg.norm(world.tcp_position() - grasp_point)
         terms = {
-            "reward_reach": 1.0 - math.tanh(10.0 * distance),
+            "reward_reach": 1.0 - math.tanh(self.reach_sharpness * distance),
             "reward_grasp": float(grasped),
             "reward_lift": 2.0 * min(1.0, max(lift, 0.0) / self.target_height) if grasped else 0.0,
             "reward_hold": float(at_height),

@@ -1,0 +1,358 @@
+"""What evaluate.py compares: trained policies (run folders or model files) and scripted
+baselines, each resolved to an environment, its kwargs and a way to build the policy.
+
+Every loading problem is found here, before any episode runs: a folder that is not a run, a
+model file that is not an SB3 zip, a model whose spaces do not fit its environment, a run
+trained with observation normalisation whose statistics are missing.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import zipfile
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from gymnasium import spaces
+
+from agents import run_folder
+from agents.config import ConfigError, closest, require_known
+from agents.evaluation import SB3Policy, make_env, task_for
+from agents.grasp_baselines import GRASP_BASELINES
+from agents.training import ALGO_CLASSES
+from agents.view_baselines import BASELINES as VIEW_BASELINES
+
+#: Baselines by environment. ``greedy-oracle`` reads the ground truth: reported as a
+#: privileged reference, never as a competitor.
+BASELINES: dict[str, Mapping[str, Callable]] = {
+    "ViewPlanning-v0": VIEW_BASELINES,
+    "InstrumentGrasp-v0": GRASP_BASELINES,
+}
+PRIVILEGED_BASELINES = frozenset({"greedy-oracle"})
+
+
+class ContestantError(ValueError):
+    """An input evaluate.py cannot use; the message names it and what is wrong."""
+
+
+@dataclass
+class Contestant:
+    """One policy or baseline to evaluate on one environment."""
+
+    label: str  #: unique name in the report
+    group: str  #: contestants sharing a group are training seeds of one method
+    kind: str  #: "policy", "baseline" or "privileged"
+    env_id: str
+    env_kwargs: dict
+    source: str  #: the path or baseline name given
+    make_policy: Callable = field(repr=False)  #: env -> policy with SB3's ``predict``
+    seed: int | None = None  #: training seed of a policy
+    config: dict | None = field(default=None, repr=False)
+
+
+def check_env_id(env_id: str) -> str:
+    return require_known("environment", env_id, list(BASELINES))
+
+
+def check_algo(algo: str) -> str:
+    return require_known("algorithm", algo, list(ALGO_CLASSES))
+
+
+# ---------------------------------------------------------------------- baselines
+def baseline_names(env_id: str) -> list[str]:
+    return list(BASELINES[env_id])
+
+
+def reference_baselines(env_id: str) -> list[str]:
+    """The baselines a report on ``env_id`` shows by default: the one a learner must beat and
+    the task's privileged reference, if any."""
+    task = task_for(env_id)
+    return [task.baseline] + ([task.reference] if task.reference else [])
+
+
+def baseline_contestant(name: str, env_id: str, env_kwargs: Mapping) -> Contestant:
+    """``env_kwargs``: the scene the policies run in; the baseline adds what it reads (the
+    scripted grasp needs the RGB-D camera and the end-effector controller)."""
+    allowed = baseline_names(env_id)
+    if name not in allowed:
+        raise ContestantError(
+            f"unknown baseline {name!r} for {env_id}{closest(name, allowed)}; "
+            f"allowed: {', '.join(allowed)}"
+        )
+    make_policy = BASELINES[env_id][name]
+    return Contestant(
+        label=name,
+        group=name,
+        kind="privileged" if name in PRIVILEGED_BASELINES else "baseline",
+        env_id=env_id,
+        env_kwargs={**env_kwargs, **getattr(make_policy, "ENV_KWARGS", {})},
+        source=name,
+        make_policy=make_policy,
+    )
+
+
+# ---------------------------------------------------------------------- trained policies
+def policy_contestant(
+    path: str | Path,
+    *,
+    env_id: str | None = None,
+    algo: str | None = None,
+    best: bool = True,
+) -> Contestant:
+    """A run folder (its best model, else its final one) or a model zip. A zip inside a run
+    folder (or its ``checkpoints/``) takes the run's config and normaliser; a lone zip needs
+    ``env_id``, and its algorithm is read from the zip unless ``algo`` is given."""
+    path = Path(path)
+    if not path.exists():
+        raise ContestantError(f"{str(path)!r} does not exist (give a run folder or a model .zip)")
+    if path.is_dir():
+        config = _read_run_config(path)
+        model_path, normalizer_path = _run_model_files(path, best)
+    else:
+        run_dir = _run_folder_of(path)
+        config = _read_run_config(run_dir) if run_dir is not None else None
+        model_path, normalizer_path = path, _normalizer_beside(path, run_dir)
+    if config is not None:
+        env_id, algo = config["env_id"], config["algo"]
+        env_kwargs = dict(config.get("env_kwargs") or {})
+        normalize = bool(config.get("normalize"))
+        seed = config.get("seed")
+    else:
+        if env_id is None:
+            raise ContestantError(
+                f"{str(path)!r} is not in a run folder, so its environment is unknown: pass --env"
+            )
+        algo = algo or _algo_in_zip(model_path)
+        env_kwargs, normalize, seed = {}, False, None
+    if normalize and (normalizer_path is None or not normalizer_path.is_file()):
+        raise ContestantError(
+            f"{str(model_path)!r} was trained with observation normalisation, but its "
+            f"statistics ({normalizer_path.name if normalizer_path else 'vecnormalize.pkl'}) "
+            "are missing: evaluating it on raw observations would be meaningless"
+        )
+    policy = _load(algo, model_path, normalizer_path if normalize else None)
+    label = path.name if path.is_dir() else f"{path.parent.name}/{path.stem}"
+    return Contestant(
+        label=label,
+        group=algo,
+        kind="policy",
+        env_id=env_id,
+        env_kwargs=env_kwargs,
+        source=str(path),
+        make_policy=lambda env: policy,
+        seed=seed,
+        config=config,
+    )
+
+
+def check_fits(contestant: Contestant, env) -> None:
+    """The policy's observation and action spaces are the environment's."""
+    if contestant.kind != "policy":
+        return
+    model = contestant.make_policy(env).model
+    for what, expected, actual in (
+        ("observation", env.observation_space, model.observation_space),
+        ("action", env.action_space, model.action_space),
+    ):
+        if not _same_space(expected, actual):
+            raise ContestantError(
+                f"{contestant.source!r} does not fit {contestant.env_id} with env kwargs "
+                f"{contestant.env_kwargs or '{}'}: its {what} space is {_describe(actual)}, "
+                f"the environment's is {_describe(expected)}"
+            )
+
+
+def unique_labels(contestants: Sequence[Contestant]) -> None:
+    """Suffix repeated labels (two runs with the same folder name) with their position."""
+    seen: dict[str, int] = {}
+    for contestant in contestants:
+        seen[contestant.label] = seen.get(contestant.label, 0) + 1
+    counts: dict[str, int] = {}
+    for contestant in contestants:
+        if seen[contestant.label] > 1:
+            counts[contestant.label] = counts.get(contestant.label, 0) + 1
+            contestant.label = f"{contestant.label} ({counts[contestant.label]})"
+
+
+# ---------------------------------------------------------------------- helpers
+def _read_run_config(run_dir: Path) -> dict:
+    try:
+        config = run_folder.read_config(run_dir)
+    except run_folder.RunFolderError as error:
+        raise ContestantError(str(error)) from error
+    if config["algo"] not in ALGO_CLASSES:
+        raise ContestantError(
+            f"{str(run_dir)!r}: unknown algo {config['algo']!r}; allowed: {', '.join(ALGO_CLASSES)}"
+        )
+    try:
+        task_for(config["env_id"])
+    except ValueError as error:
+        raise ContestantError(f"{str(run_dir)!r}: {error}") from error
+    return config
+
+
+def _run_model_files(run_dir: Path, best: bool) -> tuple[Path, Path]:
+    candidates = [(run_folder.FINAL_MODEL, run_folder.FINAL_NORMALIZER)]
+    if best:
+        candidates.insert(0, (run_folder.BEST_MODEL, run_folder.BEST_NORMALIZER))
+    for model, normalizer in candidates:
+        if (run_dir / model).is_file():
+            return run_dir / model, run_dir / normalizer
+    names = " or ".join(model for model, _ in candidates)
+    raise ContestantError(f"run folder {str(run_dir)!r} has no {names}: has it finished?")
+
+
+def _run_folder_of(model_path: Path) -> Path | None:
+    for folder in (model_path.parent, model_path.parent.parent):
+        if (folder / run_folder.CONFIG).is_file():
+            return folder
+    return None
+
+
+def _normalizer_beside(model_path: Path, run_dir: Path | None) -> Path | None:
+    """The statistics saved with a model file in a run folder: ``best_model.zip`` ->
+    ``best_vecnormalize.pkl``, ``model.zip`` -> ``vecnormalize.pkl``, a checkpoint
+    ``model_<N>_steps.zip`` -> ``vecnormalize_<N>_steps.pkl``."""
+    if run_dir is None:
+        return None
+    name = model_path.name
+    if name == run_folder.BEST_MODEL:
+        return model_path.parent / run_folder.BEST_NORMALIZER
+    if name.startswith("model_") and name.endswith("_steps.zip"):
+        return model_path.parent / name.replace("model_", "vecnormalize_").replace(".zip", ".pkl")
+    return model_path.parent / run_folder.FINAL_NORMALIZER
+
+
+def _algo_in_zip(model_path: Path) -> str:
+    """SB3 zips record their policy class's module, e.g. ``stable_baselines3.sac.policies``."""
+    try:
+        with zipfile.ZipFile(model_path) as archive:
+            data = json.loads(archive.read("data"))
+        module = data["policy_class"]["__module__"]
+    except (zipfile.BadZipFile, KeyError, ValueError, OSError) as error:
+        raise ContestantError(
+            f"{str(model_path)!r} is not a stable-baselines3 model zip ({error})"
+        ) from error
+    for algo in ALGO_CLASSES:
+        if f".{algo}." in module:
+            return algo
+    raise ContestantError(
+        f"{str(model_path)!r} holds a {module} policy; evaluate.py knows {', '.join(ALGO_CLASSES)}"
+    )
+
+
+def _load(algo: str, model_path: Path, normalizer_path: Path | None) -> SB3Policy:
+    try:
+        return SB3Policy.load(ALGO_CLASSES[algo], model_path, normalizer_path)
+    except (pickle.UnpicklingError, EOFError) as error:
+        raise ContestantError(
+            f"{str(normalizer_path)!r} is not a readable VecNormalize file ({error})"
+        ) from error
+    except (zipfile.BadZipFile, ValueError, KeyError, RuntimeError, OSError) as error:
+        raise ContestantError(
+            f"{str(model_path)!r} is not a readable {algo.upper()} model zip "
+            f"({type(error).__name__}: {error})"
+        ) from error
+
+
+def _same_space(expected: spaces.Space, actual: spaces.Space) -> bool:
+    if isinstance(expected, spaces.Dict) and isinstance(actual, spaces.Dict):
+        return set(expected.spaces) == set(actual.spaces) and all(
+            _same_space(expected[key], actual[key]) for key in expected.spaces
+        )
+    if isinstance(expected, spaces.Box) and isinstance(actual, spaces.Box):
+        return expected.shape == actual.shape and expected.dtype == actual.dtype
+    return expected == actual
+
+
+def _describe(space: spaces.Space) -> str:
+    if isinstance(space, spaces.Dict):
+        return "{" + ", ".join(f"{k}: {_describe(v)}" for k, v in space.spaces.items()) + "}"
+    if isinstance(space, spaces.Box):
+        return f"Box{space.shape} {space.dtype}"
+    return repr(space)
+
+
+def make_checked_env(contestant: Contestant, **make_kwargs):
+    """The contestant's environment, after checking its policy fits it."""
+    try:
+        env = make_env(contestant.env_id, contestant.env_kwargs, **make_kwargs)
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{contestant.env_id} with {contestant.env_kwargs}: {error}") from error
+    try:
+        check_fits(contestant, env)
+    except ContestantError:
+        env.close()
+        raise
+    return env
+
+
+# ---------------------------------------------------------------------- assembling
+#: Env kwargs naming a task's evaluation split, and the split evaluate.py uses by default.
+SPLIT_KWARGS = {"ViewPlanning-v0": "object_set", "InstrumentGrasp-v0": "instrument_set"}
+EXPLICIT_SCENE_KWARGS = {"ViewPlanning-v0": "objects", "InstrumentGrasp-v0": "instruments"}
+DEFAULT_SPLIT = "held_out"
+
+
+def build_contestants(
+    sources: Sequence[str],
+    *,
+    env_id: str | None = None,
+    algo: str | None = None,
+    baselines: Sequence[str] | None = None,
+    env_kwargs: Mapping | None = None,
+    splits: Mapping[str, str] | None = None,
+    best: bool = True,
+) -> list[Contestant]:
+    """Contestants for the given sources (run folders, model zips, baseline names), plus
+    ``baselines`` (default: each environment's reference baselines; ``[]``: none).
+
+    Each policy runs in its run's env kwargs, updated with ``env_kwargs``; the baselines of an
+    environment run in its first policy's (so the same view budget, say), plus what they
+    read. Every contestant is put on ``splits[env_id]`` (default ``held_out``) unless its
+    kwargs name objects or instruments explicitly."""
+    from agents.training import check_env_kwargs
+
+    env_kwargs = dict(env_kwargs or {})
+    splits = dict(splits or {})
+    contestants: list[Contestant] = []
+    named_baselines: list[str] = []
+    for source in sources:
+        looks_like_path = Path(source).suffix == ".zip" or "/" in source or Path(source).exists()
+        if not looks_like_path:
+            named_baselines.append(source)
+            continue
+        contestants.append(policy_contestant(source, env_id=env_id, algo=algo, best=best))
+    env_ids = list(dict.fromkeys(c.env_id for c in contestants))
+    if env_id is not None and env_id not in env_ids:
+        env_ids.append(env_id)
+    if not env_ids:
+        raise ContestantError(
+            "nothing to evaluate on: give a run folder or model file, or --env with baselines"
+        )
+    if named_baselines and len(env_ids) > 1:
+        raise ContestantError(
+            f"baseline names ({', '.join(named_baselines)}) are ambiguous with policies of "
+            f"{', '.join(env_ids)}: evaluate one environment at a time, or use --baselines"
+        )
+    for contestant in contestants:
+        contestant.env_kwargs.update(env_kwargs)
+    for current in env_ids:
+        check_env_kwargs(current, env_kwargs)
+        first_policy = next((c for c in contestants if c.env_id == current), None)
+        scene = dict(first_policy.env_kwargs) if first_policy else dict(env_kwargs)
+        wanted = list(named_baselines)
+        if baselines is None and not named_baselines:
+            wanted = reference_baselines(current)
+        elif baselines:
+            wanted += [b for b in baselines if b not in wanted]
+        for name in wanted:
+            contestants.append(baseline_contestant(name, current, scene))
+    for contestant in contestants:
+        key = SPLIT_KWARGS[contestant.env_id]
+        if EXPLICIT_SCENE_KWARGS[contestant.env_id] not in contestant.env_kwargs:
+            contestant.env_kwargs[key] = splits.get(contestant.env_id, DEFAULT_SPLIT)
+    unique_labels(contestants)
+    return contestants

@@ -1,0 +1,548 @@
+"""Evaluation reports: every contestant (trained policy or baseline) on the same seeded
+episodes, summarised with confidence intervals, written as ``report.json`` (every
+per-episode figure), ``report.md`` (readable on its own) and figures.
+
+Episode ``k`` of every contestant of an environment uses seed ``seed + k``: the same object
+or instrument in the same pose, so comparisons are paired. The report checks it and says so.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from agents import plotting, run_folder
+from agents.contestants import Contestant, check_fits, make_checked_env
+from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
+from agents.recorders import COVERAGE_LEVELS, GraspRecorder, ViewPlanningRecorder
+from agents.statistics import (
+    bootstrap_ci,
+    iqm,
+    probability_of_improvement,
+    probability_of_improvement_ci,
+    stratified_bootstrap_ci,
+    wilson_interval,
+)
+from agents.video import record_videos
+
+DEFAULT_EPISODES = 100
+DEFAULT_RECONSTRUCT_EPISODES = 20
+DEFAULT_SAVE_EPISODES = 3
+DEFAULT_VIDEO_EPISODES = 2
+DEFAULT_TRACE_EPISODES = 5
+REPORT_JSON = "report.json"
+REPORT_MD = "report.md"
+
+
+@dataclass
+class Settings:
+    episodes: int = DEFAULT_EPISODES
+    seed: int = FINAL_EVAL_SEED
+    deterministic: bool = True
+    #: ViewPlanning: reconstruct (Poisson, ~1-3 s) the first this many episodes of each
+    reconstruct_episodes: int = DEFAULT_RECONSTRUCT_EPISODES
+    #: ...and save the .ply files and a picture of the first this many of those
+    save_episodes: int = DEFAULT_SAVE_EPISODES
+    video_episodes: int = 0
+    progress: bool = False
+    command: str = ""
+
+
+def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -> dict:
+    """Run every contestant, write the report into ``out`` and return its JSON document."""
+    started = time.perf_counter()
+    envs = _open_envs(contestants)  # fails on a misfit model before any episode runs
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = range(settings.seed, settings.seed + settings.episodes)
+    progress = _progress_bar(len(contestants) * settings.episodes, settings.progress)
+    results = []
+    try:
+        for contestant in contestants:
+            progress.set_description(contestant.label[:30])
+            env = envs[_env_key(contestant)]
+            task = task_for(contestant.env_id)
+            episodes = run_episodes(
+                env,
+                contestant.make_policy(env),
+                seeds,
+                (task.metric, *task.extra_metrics),
+                deterministic=settings.deterministic,
+                recorder=_recorder(contestant, settings, out),
+                on_episode=progress.update,
+            )
+            results.append(
+                {
+                    **_describe(contestant),
+                    "summary": _summary(contestant.env_id, episodes),
+                    "episodes": episodes,
+                }
+            )
+    finally:
+        progress.close()
+        for env in envs.values():
+            env.close()
+    report = {
+        "created": datetime.datetime.now().isoformat(timespec="seconds"),
+        "command": settings.command,
+        "settings": asdict(settings),
+        "seeds": [seeds.start, seeds.stop - 1],
+        "versions": run_folder.library_versions(),
+        "git_commit": run_folder.git_commit(),
+        "environments": {
+            env_id: _environment_section(env_id, [r for r in results if r["env_id"] == env_id])
+            for env_id in dict.fromkeys(c.env_id for c in contestants)
+        },
+    }
+    figures = _figures(report, out, settings)
+    if settings.video_episodes:
+        figures["videos"] = [
+            str(path.relative_to(out))
+            for path in record_videos(contestants, seeds[: settings.video_episodes], out)
+        ]
+    report["figures"] = figures
+    report["wall_seconds"] = round(time.perf_counter() - started, 1)
+    (out / REPORT_JSON).write_text(json.dumps(report, indent=1, default=_json_default))
+    (out / REPORT_MD).write_text(markdown(report))
+    return report
+
+
+# ---------------------------------------------------------------------- running
+def _env_key(contestant: Contestant) -> tuple:
+    return contestant.env_id, json.dumps(contestant.env_kwargs, sort_keys=True, default=str)
+
+
+def _open_envs(contestants: Sequence[Contestant]) -> dict:
+    """One environment per (id, kwargs), shared by the contestants that use it; every policy
+    is checked against its environment here."""
+    envs: dict = {}
+    try:
+        for contestant in contestants:
+            key = _env_key(contestant)
+            if key not in envs:
+                envs[key] = make_checked_env(contestant)
+            else:
+                check_fits(contestant, envs[key])
+    except BaseException:
+        for env in envs.values():
+            env.close()
+        raise
+    return envs
+
+
+def _recorder(contestant: Contestant, settings: Settings, out: Path):
+    if contestant.env_id == "ViewPlanning-v0":
+        return ViewPlanningRecorder(
+            reconstruct_episodes=settings.reconstruct_episodes,
+            save_dir=out / "reconstructions" / _slug(contestant.label),
+            save_episodes=min(settings.save_episodes, settings.reconstruct_episodes),
+        )
+    return GraspRecorder()
+
+
+def _progress_bar(total: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, unit="episode", disable=not enabled, dynamic_ncols=True)
+
+
+def _describe(contestant: Contestant) -> dict:
+    return {
+        "label": contestant.label,
+        "group": contestant.group,
+        "kind": contestant.kind,
+        "env_id": contestant.env_id,
+        "env_kwargs": contestant.env_kwargs,
+        "source": contestant.source,
+        "training_seed": contestant.seed,
+        "training_command": (contestant.config or {}).get("command"),
+    }
+
+
+# ---------------------------------------------------------------------- statistics
+def _mean_ci(values) -> dict | None:
+    values = [v for v in values if v is not None]
+    if not values:
+        return None
+    low, high = bootstrap_ci(values)
+    return {"mean": float(np.mean(values)), "ci95": [low, high], "n": len(values)}
+
+
+def _rate(flags) -> dict:
+    flags = [bool(flag) for flag in flags]
+    low, high = wilson_interval(sum(flags), len(flags))
+    return {"rate": sum(flags) / len(flags), "ci95": [low, high], "count": sum(flags)}
+
+
+def _summary(env_id: str, episodes: list[dict]) -> dict:
+    task = task_for(env_id)
+    summary = summarize(episodes, task.metric)
+    if env_id == "ViewPlanning-v0":
+        summary.update(_view_planning_summary(episodes))
+    else:
+        summary.update(_grasp_summary(episodes))
+    return summary
+
+
+def _view_planning_summary(episodes: list[dict]) -> dict:
+    longest = max(len(e["coverage_after_view"]) for e in episodes)
+    # An episode that ended early (terminate_on_success) keeps its last coverage.
+    curves = np.array(
+        [
+            np.pad(c, (0, longest - len(c)), mode="edge")
+            for c in (e["coverage_after_view"] for e in episodes)
+        ]
+    )
+    summary = {
+        "coverage_after_view": [_mean_ci(curves[:, k]) for k in range(longest)],
+        "refused_views": _mean_ci([e["refused_views"] for e in episodes]),
+        "joint_path_length": _mean_ci([e["joint_path_length"] for e in episodes]),
+        "motion_cost": _mean_ci([e["motion_cost"] for e in episodes]),
+    }
+    for level in COVERAGE_LEVELS:
+        key = f"views_to_{round(100 * level)}"
+        views = [e[key] for e in episodes]
+        summary[key] = {
+            "reached": _rate([v is not None for v in views]),
+            "views_if_reached": _mean_ci(views),
+        }
+    for key in ("chamfer", "fscore", "precision", "completeness"):
+        summary[key] = _mean_ci([e[key] for e in episodes if key in e])
+    return summary
+
+
+def _grasp_summary(episodes: list[dict]) -> dict:
+    peaks = np.array([e["peak_force"] for e in episodes])
+    return {
+        "success": _rate([e["is_success"] for e in episodes]),
+        "hard_limit_exceeded": _rate([e["hard_limit_exceeded"] for e in episodes]),
+        "over_force_limit": _rate([e["force_violations"] > 0 for e in episodes]),
+        "peak_force_quantiles": {
+            q: float(np.quantile(peaks, float(q))) for q in ("0.5", "0.9", "1.0")
+        },
+        "max_lift": _mean_ci([e["max_lift"] for e in episodes]),
+        "time_to_lift": _mean_ci([e["time_to_lift"] for e in episodes]),
+    }
+
+
+def _scores(result: dict, metric: str) -> np.ndarray:
+    return np.array([float(e[metric]) for e in result["episodes"]])
+
+
+def _environment_section(env_id: str, results: list[dict]) -> dict:
+    task = task_for(env_id)
+    scene_keys = (
+        ("object", "scale", "position", "yaw") if env_id == "ViewPlanning-v0" else ("instrument",)
+    )
+    scenes = [
+        [tuple(map(str, (e.get(k) for k in scene_keys))) for e in r["episodes"]] for r in results
+    ]
+    section = {
+        "metric": task.metric,
+        "metric_label": task.metric_label,
+        "baseline": task.baseline,
+        "paired": all(s == scenes[0] for s in scenes),
+        "contestants": results,
+        "aggregates": [],
+    }
+    baseline = next((r for r in results if r["label"] == task.baseline), None)
+    groups: dict[str, list[dict]] = {}
+    for result in results:
+        if result["kind"] == "policy":
+            groups.setdefault(result["group"], []).append(result)
+    for group, members in groups.items():
+        if len(members) < 2:
+            continue
+        scores = np.stack([_scores(m, task.metric) for m in members])
+        aggregate = {
+            "group": group,
+            "runs": [m["label"] for m in members],
+            "iqm": iqm(scores),
+            "iqm_ci95": list(stratified_bootstrap_ci(scores, iqm)),
+            "mean": float(scores.mean()),
+            "mean_ci95": list(stratified_bootstrap_ci(scores, np.mean)),
+        }
+        if baseline is not None and section["paired"]:
+            reference = _scores(baseline, task.metric)[None]
+            aggregate["probability_of_improvement"] = {
+                "over": task.baseline,
+                "value": probability_of_improvement(scores, reference),
+                "ci95": list(probability_of_improvement_ci(scores, reference)),
+            }
+        section["aggregates"].append(aggregate)
+    return section
+
+
+# ---------------------------------------------------------------------- figures
+def _figures(report: dict, out: Path, settings: Settings) -> dict:
+    figures: dict = {}
+    for env_id, section in report["environments"].items():
+        results = section["contestants"]
+        if env_id == "ViewPlanning-v0":
+            figures["coverage_vs_views"] = _rel(
+                plotting.plot_coverage_curves(
+                    out / "coverage_vs_views.png",
+                    {r["label"]: r["summary"]["coverage_after_view"] for r in results},
+                ),
+                out,
+            )
+            pictures = []
+            for result in results:
+                folder = out / "reconstructions" / _slug(result["label"])
+                picture = plotting.plot_reconstructions(
+                    folder / "reconstructions.png", folder, result["label"]
+                )
+                if picture is not None:
+                    pictures.append(_rel(picture, out))
+            figures["reconstructions"] = pictures
+        else:
+            limits = _grasp_limits(results)
+            figures["force_traces"] = _rel(
+                plotting.plot_force_traces(
+                    out / "force_traces.png",
+                    {
+                        r["label"]: [
+                            e["force_trace"] for e in r["episodes"][:DEFAULT_TRACE_EPISODES]
+                        ]
+                        for r in results
+                    },
+                    **limits,
+                ),
+                out,
+            )
+            figures["grasp_outcomes"] = _rel(
+                plotting.plot_grasp_outcomes(
+                    out / "grasp_outcomes.png", {r["label"]: r["summary"] for r in results}
+                ),
+                out,
+            )
+            figures["peak_forces"] = _rel(
+                plotting.plot_peak_forces(
+                    out / "peak_forces.png",
+                    {r["label"]: [e["peak_force"] for e in r["episodes"]] for r in results},
+                    limits["force_limit"],
+                    limits["hard_limit"],
+                ),
+                out,
+            )
+    return figures
+
+
+def _grasp_limits(results: list[dict]) -> dict:
+    """The force limits and control period of the first contestant's env (kwargs or defaults)."""
+    from liuxing_envs.envs import instrument_grasp as grasp
+
+    kwargs = results[0]["env_kwargs"]
+    force_limit = float(kwargs.get("force_limit", grasp.DEFAULT_FORCE_LIMIT))
+    factor = float(kwargs.get("hard_limit_factor", grasp.DEFAULT_HARD_LIMIT_FACTOR))
+    return {
+        "force_limit": force_limit,
+        "hard_limit": force_limit * factor,
+        "dt": 1.0 / float(kwargs.get("control_hz", grasp.DEFAULT_CONTROL_HZ)),
+    }
+
+
+def _rel(path: Path | None, out: Path) -> str | None:
+    return None if path is None else str(Path(path).relative_to(out))
+
+
+def _slug(label: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
+
+
+def _json_default(value):
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+# ---------------------------------------------------------------------- markdown
+def _ci(entry: dict | None, scale: float = 1.0, digits: int = 3) -> str:
+    if entry is None:
+        return "-"
+    low, high = entry["ci95"]
+    return (
+        f"{entry['mean'] * scale:.{digits}f} [{low * scale:.{digits}f}, {high * scale:.{digits}f}]"
+    )
+
+
+def _pct(entry: dict) -> str:
+    low, high = entry["ci95"]
+    return f"{100 * entry['rate']:.0f}% [{100 * low:.0f}, {100 * high:.0f}]"
+
+
+def _kind(result: dict) -> str:
+    return {"policy": "trained", "baseline": "baseline", "privileged": "privileged"}[result["kind"]]
+
+
+def _view_planning_tables(section: dict) -> list[str]:
+    results = section["contestants"]
+    levels = [f"views_to_{round(100 * level)}" for level in COVERAGE_LEVELS]
+    lines = [
+        "| contestant | kind | final coverage [95% CI] | "
+        + " | ".join(f"reached {k[-2:]}% (views if reached)" for k in levels)
+        + " | Chamfer mm [95% CI] | F-score [95% CI] | joint path rad | refused views |",
+        "|---|---|---|" + "---|" * len(levels) + "---|---|---|---|",
+    ]
+    for r in results:
+        s = r["summary"]
+        reached = []
+        for key in levels:
+            entry = s[key]
+            views = entry["views_if_reached"]
+            reached.append(
+                f"{100 * entry['reached']['rate']:.0f}%"
+                + (f" ({views['mean']:.2f})" if views else "")
+            )
+        lines.append(
+            f"| {r['label']} | {_kind(r)} | {_ci({'mean': s['mean'], 'ci95': s['ci95']})} | "
+            + " | ".join(reached)
+            + f" | {_ci(s['chamfer'], 1000, 2)} | {_ci(s['fscore'])}"
+            + f" | {s['joint_path_length']['mean']:.2f} | {s['refused_views']['mean']:.2f} |"
+        )
+    budget = max(len(r["summary"]["coverage_after_view"]) for r in results)
+    lines += [
+        "",
+        "Coverage after each view (mean; view 0 is the start view taken at reset):",
+        "",
+        "| contestant | " + " | ".join(f"view {k}" for k in range(budget)) + " |",
+        "|---|" + "---|" * budget,
+    ]
+    for r in results:
+        curve = r["summary"]["coverage_after_view"]
+        lines.append(
+            f"| {r['label']} | " + " | ".join(f"{entry['mean']:.3f}" for entry in curve) + " |"
+        )
+    reconstructed = results[0]["summary"]["chamfer"]
+    if reconstructed:
+        lines += [
+            "",
+            f"Chamfer distance and F-score: open3d Poisson reconstructions of the first "
+            f"{reconstructed['n']} episodes of each contestant, against dense ground-truth "
+            "surface samples (τ = 1% of the object's bounding-box diagonal).",
+        ]
+    return lines
+
+
+def _grasp_tables(section: dict) -> list[str]:
+    lines = [
+        "| contestant | kind | success [95% CI] | hard-limit stops | episodes over the force "
+        "limit | peak force N (median / p90 / max) | max lift cm | time to lift s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in section["contestants"]:
+        s = r["summary"]
+        q = s["peak_force_quantiles"]
+        lift = s["time_to_lift"]
+        lines.append(
+            f"| {r['label']} | {_kind(r)} | {_pct(s['success'])} | "
+            f"{s['hard_limit_exceeded']['count']} | {s['over_force_limit']['count']} | "
+            f"{q['0.5']:.1f} / {q['0.9']:.1f} / {q['1.0']:.1f} | "
+            f"{100 * s['max_lift']['mean']:.1f} | "
+            + (f"{lift['mean']:.2f} (n={lift['n']})" if lift else "-")
+            + " |"
+        )
+    return lines
+
+
+def markdown(report: dict) -> str:
+    settings = report["settings"]
+    first, last = report["seeds"]
+    lines = [
+        "# Evaluation report",
+        "",
+        f"Created {report['created']} by `{report['command']}` in "
+        f"{report['wall_seconds'] / 60:.1f} min",
+        f"(git {report['git_commit'] or 'unknown'}; "
+        + ", ".join(f"{k} {v}" for k, v in report["versions"].items() if k != "platform")
+        + ").",
+        "",
+        f"Each contestant ran the same {settings['episodes']} episodes, seeds {first}-{last} "
+        f"({'deterministic' if settings['deterministic'] else 'stochastic'} actions for trained "
+        "policies): episode k of every contestant has the same object or instrument in the same "
+        "pose, so differences are paired. 95% intervals: percentile bootstrap of the mean "
+        "(10,000 resamples) for continuous figures, Wilson for rates. Per-episode figures are "
+        f"in `{REPORT_JSON}`.",
+    ]
+    for env_id, section in report["environments"].items():
+        lines += ["", f"## {env_id}", ""]
+        lines.append(
+            "Paired: every contestant saw the same scenes."
+            if section["paired"]
+            else "**Not paired**: contestants saw different scenes (their env kwargs differ); "
+            "compare them with care."
+        )
+        lines.append("")
+        for r in section["contestants"]:
+            extra = f", seed {r['training_seed']}" if r["training_seed"] is not None else ""
+            lines.append(
+                f"- **{r['label']}** ({_kind(r)}{extra}): `{r['source']}`, env kwargs "
+                f"`{json.dumps(r['env_kwargs'])}`"
+            )
+        lines.append("")
+        if env_id == "ViewPlanning-v0":
+            lines += _view_planning_tables(section)
+        else:
+            lines += _grasp_tables(section)
+        if section["aggregates"]:
+            lines += [
+                "",
+                f"Across training seeds (IQM and mean of the per-episode {section['metric_label']} "
+                "over all seeds' episodes; 95% stratified-bootstrap intervals resampling seeds "
+                "within each episode, after Agarwal et al. 2021):",
+                "",
+                "| method | runs | IQM [95% CI] | mean [95% CI] | "
+                f"P(improvement over {section['baseline']}) |",
+                "|---|---|---|---|---|",
+            ]
+            for a in section["aggregates"]:
+                poi = a.get("probability_of_improvement")
+                lines.append(
+                    f"| {a['group']} | {len(a['runs'])} | "
+                    f"{_ci({'mean': a['iqm'], 'ci95': a['iqm_ci95']})} | "
+                    f"{_ci({'mean': a['mean'], 'ci95': a['mean_ci95']})} | "
+                    + (_ci({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2) if poi else "-")
+                    + " |"
+                )
+    figures = report.get("figures", {})
+    if figures:
+        lines += ["", "## Figures", ""]
+        for name, value in figures.items():
+            for path in value if isinstance(value, list) else [value]:
+                if path is None:
+                    continue
+                if str(path).endswith(".png"):
+                    lines.append(f"![{name}]({path})")
+                else:
+                    lines.append(f"- [{path}]({path})")
+    return "\n".join(lines) + "\n"
+
+
+def summary_lines(report: dict) -> str:
+    """The headline figure of every contestant, for the terminal."""
+    lines = []
+    for env_id, section in report["environments"].items():
+        lines.append(
+            f"{env_id}: {section['metric_label']} over {report['settings']['episodes']} episodes"
+        )
+        for result in section["contestants"]:
+            summary = result["summary"]
+            low, high = summary["ci95"]
+            lines.append(
+                f"  {result['label']:<32} {summary['mean']:.3f}  95% CI [{low:.3f}, {high:.3f}]"
+                f"  ({_kind(result)})"
+            )
+    return "\n".join(lines)
+
+
+def command_line() -> str:
+    return " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])

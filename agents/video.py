@@ -1,0 +1,94 @@
+"""mp4 videos of evaluation episodes: the environment's ``rgb_array`` render (ViewPlanning:
+the scene with the camera frustum and the fused points; InstrumentGrasp: pads shaded by
+force) with a text read-out of the figures that matter, written with OpenCV."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from agents.evaluation import make_env
+
+#: ViewPlanning episodes are a handful of views: each is held on screen this long.
+VIEW_SECONDS = 1.0
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def _readout(env_id: str, info: dict, seconds: float) -> list[str]:
+    if env_id == "ViewPlanning-v0":
+        lines = [f"view {info['views_used']}  coverage {info['coverage']:.3f}"]
+        if info.get("refused"):
+            lines.append("view refused")
+        return lines
+    return [
+        f"t {seconds:.2f} s  grip {info.get('grip_force', 0.0):.1f} N  "
+        f"peak {info.get('peak_force', 0.0):.1f} N",
+        f"lift {100 * info.get('lift_height', 0.0):.1f} cm"
+        + ("  grasped" if info.get("grasped") else ""),
+    ]
+
+
+def _annotate(frame: np.ndarray, title: str, lines: Sequence[str]) -> np.ndarray:
+    frame = np.ascontiguousarray(frame[..., ::-1])  # RGB -> OpenCV's BGR
+    for row, text in enumerate([title, *lines]):
+        origin = (10, 24 + 24 * row)
+        cv2.putText(frame, text, origin, FONT, 0.6, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(frame, text, origin, FONT, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
+    return frame
+
+
+def record_videos(contestants, seeds: Iterable[int], out: Path) -> list[Path]:
+    """One mp4 per contestant under ``out/videos/``, its episodes of ``seeds`` one after
+    another; returns the written paths."""
+    folder = Path(out) / "videos"
+    folder.mkdir(parents=True, exist_ok=True)
+    seeds = list(seeds)
+    written = []
+    for contestant in contestants:
+        env = make_env(contestant.env_id, contestant.env_kwargs, render_mode="rgb_array")
+        fps = env.metadata.get("render_fps", 20)
+        if contestant.env_id == "ViewPlanning-v0":
+            repeat, dt = max(1, round(VIEW_SECONDS * fps)), 0.0
+        else:
+            scene = env.unwrapped
+            repeat, dt = 1, scene.substeps * scene.world.model.opt.timestep
+        path = (
+            folder
+            / f"{''.join(c if c.isalnum() or c in '-_.' else '_' for c in contestant.label)}.mp4"
+        )
+        writer = None
+        try:
+            policy = contestant.make_policy(env)
+            for seed in seeds:
+                observation, info = env.reset(seed=int(seed))
+                if hasattr(policy, "reset"):
+                    policy.reset()
+                step, done = 0, False
+                while True:
+                    frame = _annotate(
+                        env.render(),
+                        f"{contestant.label}  seed {seed}",
+                        _readout(contestant.env_id, info, step * dt),
+                    )
+                    if writer is None:
+                        height, width = frame.shape[:2]
+                        writer = cv2.VideoWriter(
+                            str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height)
+                        )
+                    for _ in range(repeat):
+                        writer.write(frame)
+                    if done:
+                        break
+                    action, _ = policy.predict(observation, deterministic=True)
+                    observation, _, terminated, truncated, info = env.step(action)
+                    step += 1
+                    done = terminated or truncated
+        finally:
+            if writer is not None:
+                writer.release()
+            env.close()
+        written.append(path)
+    return written

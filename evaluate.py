@@ -1,0 +1,150 @@
+"""Evaluate trained policies and scripted baselines on the same seeded episodes and write a
+report (report.md, report.json, figures, optional videos).
+
+    python evaluate.py policies/ViewPlanning-v0/ppo              # + four-view and the oracle
+    python evaluate.py runs/ViewPlanning-v0/ppo_seed0_* --episodes 100 --out reports/ppo
+    python evaluate.py --env ViewPlanning-v0 four-view uniform random --episodes 20
+    python evaluate.py policies/InstrumentGrasp-v0/sac --baselines scripted-grasp,squeeze --video
+    python evaluate.py model.zip --env InstrumentGrasp-v0 --env-kwargs obs_mode=state
+
+Sources are run folders (their best model; --final-model for the last one), model .zip files
+(a zip inside a run folder takes the run's config; a lone one needs --env) or baseline names:
+ViewPlanning-v0: four-view, uniform, random, greedy-oracle (privileged: it reads the ground
+truth); InstrumentGrasp-v0: scripted-grasp, squeeze, random. Several run folders of one
+algorithm are aggregated as training seeds (IQM, stratified bootstrap, probability of
+improvement over the baseline). Episodes are the held-out objects / instruments unless
+--object-set / --instrument-set say otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+from agents.config import ConfigError, parse_assignments  # noqa: E402
+
+SPLITS = ("train", "held_out", "all")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="evaluate.py",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="\n\n".join(__doc__.split("\n\n")[1:]),
+    )
+    what = parser.add_argument_group("what to evaluate")
+    what.add_argument(
+        "sources", nargs="*", metavar="SOURCE", help="run folders, model .zip files, baselines"
+    )
+    what.add_argument("--env", help="environment of lone model files and named baselines")
+    what.add_argument("--algo", help="ppo or sac, for a lone model file (default: read from it)")
+    what.add_argument(
+        "--baselines",
+        help="comma-separated baselines to add, or 'none' (default: the env's reference ones)",
+    )
+    what.add_argument(
+        "--final-model", action="store_true", help="a run folder's final model, not its best"
+    )
+    episodes = parser.add_argument_group("episodes")
+    episodes.add_argument("--episodes", type=int, default=100, help="episodes per contestant")
+    episodes.add_argument(
+        "--seed", type=int, default=1_000_000, help="seed of the first episode (default: 1000000)"
+    )
+    episodes.add_argument("--object-set", choices=SPLITS, default="held_out")
+    episodes.add_argument("--instrument-set", choices=SPLITS, default="held_out")
+    episodes.add_argument("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="gym.make kwargs")
+    episodes.add_argument(
+        "--deterministic",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="deterministic actions for trained policies (default: on)",
+    )
+    report = parser.add_argument_group("report")
+    report.add_argument("--out", default="reports/latest", help="report folder")
+    report.add_argument(
+        "--reconstruct-episodes",
+        type=int,
+        default=20,
+        help="ViewPlanning episodes per contestant scored by reconstruction (~2 s each)",
+    )
+    report.add_argument(
+        "--save-reconstructions", type=int, default=3, help="of those, how many to save as .ply"
+    )
+    report.add_argument("--video", action="store_true", help="write mp4 videos of a few episodes")
+    report.add_argument("--video-episodes", type=int, default=2, help="episodes per video")
+    report.add_argument(
+        "--progress-bar",
+        action=argparse.BooleanOptionalAction,
+        default=sys.stderr.isatty(),
+        help="show a progress bar (default: on when writing to a terminal)",
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for flag in ("episodes", "video_episodes"):
+        if getattr(args, flag) < 1:
+            parser.error(f"--{flag.replace('_', '-')} must be at least 1")
+    for flag in ("reconstruct_episodes", "save_reconstructions"):
+        if getattr(args, flag) < 0:
+            parser.error(f"--{flag.replace('_', '-')} must be 0 or more")
+    # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
+    from agents import contestants as contest
+    from agents import report
+
+    try:
+        if args.env is not None:
+            contest.check_env_id(args.env)
+        if args.algo is not None:
+            contest.check_algo(args.algo)
+        baselines = None
+        if args.baselines is not None:
+            names = [name.strip() for name in args.baselines.split(",") if name.strip()]
+            baselines = [] if names == ["none"] else names
+        contestants = contest.build_contestants(
+            args.sources,
+            env_id=args.env,
+            algo=args.algo,
+            baselines=baselines,
+            env_kwargs=parse_assignments(args.env_kwargs, "--env-kwargs"),
+            splits={
+                "ViewPlanning-v0": args.object_set,
+                "InstrumentGrasp-v0": args.instrument_set,
+            },
+            best=not args.final_model,
+        )
+        settings = report.Settings(
+            episodes=args.episodes,
+            seed=args.seed,
+            deterministic=args.deterministic,
+            reconstruct_episodes=min(args.reconstruct_episodes, args.episodes),
+            save_episodes=args.save_reconstructions,
+            video_episodes=args.video_episodes if args.video else 0,
+            progress=args.progress_bar,
+            command=report.command_line(),
+        )
+        print(
+            "evaluating "
+            + ", ".join(f"{c.label} ({c.env_id})" for c in contestants)
+            + f" on {args.episodes} episodes",
+            flush=True,
+        )
+        result = report.evaluate(contestants, settings, args.out)
+    except (ConfigError, contest.ContestantError) as error:
+        parser.error(str(error))
+    except KeyboardInterrupt:
+        return 130
+    print(report.summary_lines(result))
+    print(f"report: {os.path.join(args.out, report.REPORT_MD)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

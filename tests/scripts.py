@@ -1,0 +1,26 @@
+"""Running the repository's command-line scripts (train.py, evaluate.py) as users do."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def run_script(script: str, *args: str, check: bool = True, timeout: float = 900):
+    """``python <script> <args>`` in the repository root; with ``check``, a non-zero exit
+    fails the test with the script's stderr."""
+    result = subprocess.run(
+        [sys.executable, script, *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+    )
+    if check and result.returncode != 0:
+        raise AssertionError(f"{script} failed ({result.returncode}):\n{result.stderr[-3000:]}")
+    return result

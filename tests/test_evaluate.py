@@ -1,0 +1,277 @@
+"""evaluate.py and its report: paired episodes, honest statistics, clean failures.
+
+End-to-end tests run ``evaluate.py`` as a subprocess on the shipped ViewPlanning policy and on
+a tiny SAC run trained here (with observation normalisation), for a few episodes each."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agents import run_folder
+from agents.statistics import (
+    iqm,
+    probability_of_improvement,
+    stratified_bootstrap_ci,
+)
+from tests.scripts import REPO, run_script
+
+SHIPPED_VIEW_POLICY = REPO / "policies" / "ViewPlanning-v0" / "ppo"
+
+
+@pytest.fixture(scope="module")
+def grasp_run(tmp_path_factory) -> Path:
+    """A tiny SAC run on InstrumentGrasp-v0 (normalised observations, as its YAML asks)."""
+    run_dir = tmp_path_factory.mktemp("runs") / "grasp_sac"
+    run_script(
+        "train.py",
+        *("--env", "InstrumentGrasp-v0", "--algo", "sac", "-n", "256"),
+        *("--run-dir", str(run_dir), "--eval-freq", "128", "--save-freq", "128"),
+        *("--eval-episodes", "1", "--final-episodes", "0", "--no-progress-bar"),
+        *("--hyperparams", "learning_starts=64", "batch_size=32"),
+    )
+    return run_dir
+
+
+def read_report(out: Path) -> dict:
+    assert (out / "report.md").is_file()
+    return json.loads((out / "report.json").read_text())
+
+
+def assert_ci_holds_mean(entry: dict, key: str = "mean") -> None:
+    low, high = entry["ci95"]
+    assert low - 1e-9 <= entry[key] <= high + 1e-9, entry
+
+
+# --- statistics -----------------------------------------------------------------------------
+
+
+def test_iqm_is_the_mean_of_the_middle_half():
+    assert iqm([0, 1, 2, 3, 4, 5, 6, 100]) == pytest.approx(np.mean([2, 3, 4, 5]))
+    assert iqm([[1.0, 1.0], [1.0, 1.0]]) == 1.0
+
+
+def test_stratified_bootstrap_resamples_runs_within_each_task():
+    identical_runs = np.tile(np.linspace(0, 1, 10), (3, 1))
+    assert stratified_bootstrap_ci(identical_runs, np.mean) == pytest.approx((0.5, 0.5))
+    rng = np.random.default_rng(0)
+    noisy = rng.normal(0.5, 0.1, size=(5, 20))
+    low, high = stratified_bootstrap_ci(noisy, iqm)
+    assert low < iqm(noisy) < high
+    assert high - low < 0.2
+
+
+def test_probability_of_improvement_counts_wins_and_half_ties():
+    better = np.array([[2.0, 2.0, 2.0]])
+    worse = np.array([[1.0, 1.0, 1.0]])
+    assert probability_of_improvement(better, worse) == 1.0
+    assert probability_of_improvement(worse, better) == 0.0
+    assert probability_of_improvement(better, better) == 0.5
+    # Task 0: one run wins (1), one ties (1/2): 0.75. Task 1: both tie: 0.5. Mean: 0.625.
+    two_seeds = np.array([[2.0, 0.0], [0.0, 0.0]])
+    assert probability_of_improvement(two_seeds, np.zeros((1, 2))) == pytest.approx(0.625)
+
+
+# --- end to end -------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_view_planning_report_is_paired_and_its_numbers_are_sound(tmp_path):
+    out = tmp_path / "report"
+    result = run_script(
+        "evaluate.py",
+        str(SHIPPED_VIEW_POLICY),
+        *("--baselines", "four-view,uniform,greedy-oracle", "--episodes", "3"),
+        *("--reconstruct-episodes", "1", "--save-reconstructions", "1", "--out", str(out)),
+    )
+    assert "four-view" in result.stdout
+    report = read_report(out)
+    section = report["environments"]["ViewPlanning-v0"]
+    labels = [c["label"] for c in section["contestants"]]
+    assert labels == ["ppo", "four-view", "uniform", "greedy-oracle"]
+    assert section["paired"]
+    scenes = [
+        [
+            (e["seed"], e["object"], e["scale"], tuple(e["position"]), e["yaw"])
+            for e in c["episodes"]
+        ]
+        for c in section["contestants"]
+    ]
+    assert all(scene == scenes[0] for scene in scenes)
+    assert [seed for seed, *_ in scenes[0]] == [1_000_000, 1_000_001, 1_000_002]
+    for contestant in section["contestants"]:
+        summary = contestant["summary"]
+        assert 0.0 <= summary["mean"] <= 1.0
+        assert_ci_holds_mean(summary)
+        for episode in contestant["episodes"]:
+            curve = episode["coverage_after_view"]
+            assert len(curve) == 5  # the start view and a budget of four
+            assert np.all(np.diff(curve) >= 0), "coverage never falls"
+            assert curve[-1] == pytest.approx(episode["coverage"])
+            reached = episode["views_to_90"]
+            assert (reached is None) == (max(curve) < 0.9)
+        for entry in summary["coverage_after_view"]:
+            assert_ci_holds_mean(entry)
+        # The first episode was reconstructed and scored; the others were not.
+        assert "fscore" in contestant["episodes"][0] and "fscore" not in contestant["episodes"][1]
+        assert 0.0 <= summary["fscore"]["mean"] <= 1.0 and summary["chamfer"]["mean"] > 0
+    # The start view is the same for everyone; the privileged oracle ends highest.
+    starts = {c["summary"]["coverage_after_view"][0]["mean"] for c in section["contestants"]}
+    assert len(starts) == 1
+    oracle = section["contestants"][-1]["summary"]["mean"]
+    assert oracle >= max(c["summary"]["mean"] for c in section["contestants"][:-1])
+    saved = out / "reconstructions" / "ppo" / "seed_1000000"
+    assert (saved / "ground_truth.ply").is_file() and (saved / "reconstruction_cloud.ply").is_file()
+    for figure in ("coverage_vs_views.png", "reconstructions/ppo/reconstructions.png"):
+        assert (out / figure).stat().st_size > 10_000
+    markdown = (out / "report.md").read_text()
+    assert "| ppo | trained |" in markdown and "greedy-oracle | privileged" in markdown
+
+
+@pytest.mark.slow
+def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_path):
+    out = tmp_path / "report"
+    run_script(
+        "evaluate.py",
+        str(grasp_run),
+        *("--baselines", "scripted-grasp,squeeze", "--episodes", "2", "--out", str(out)),
+        *("--instrument-set", "train", "--video", "--video-episodes", "1"),
+    )
+    report = read_report(out)
+    section = report["environments"]["InstrumentGrasp-v0"]
+    assert section["paired"]
+    by_label = {c["label"]: c for c in section["contestants"]}
+    assert set(by_label) == {"grasp_sac", "scripted-grasp", "squeeze"}
+    assert by_label["grasp_sac"]["env_kwargs"]["instrument_set"] == "train"
+    for contestant in section["contestants"]:
+        summary = contestant["summary"]
+        assert_ci_holds_mean(summary["success"], "rate")
+        for episode in contestant["episodes"]:
+            assert len(episode["force_trace"]) == episode["length"]
+            assert episode["peak_force"] == pytest.approx(max(episode["force_trace"]), abs=1e-3)
+            assert episode["hard_limit_exceeded"] == (max(episode["force_trace"]) > 15.0)
+    # Squeezing trips the hard limit; the gentle script lifts without going over the limit.
+    assert by_label["squeeze"]["summary"]["hard_limit_exceeded"]["rate"] == 1.0
+    scripted = by_label["scripted-grasp"]["summary"]
+    assert scripted["success"]["rate"] == 1.0 and scripted["over_force_limit"]["count"] == 0
+    assert scripted["max_lift"]["mean"] >= 0.10
+    for figure in ("force_traces.png", "grasp_outcomes.png", "peak_forces.png"):
+        assert (out / figure).stat().st_size > 10_000
+    video = out / "videos" / "scripted-grasp.mp4"
+    assert video.stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
+    runs = []
+    for seed in (2, 3):
+        run = tmp_path / f"ppo_seed{seed}"
+        shutil.copytree(SHIPPED_VIEW_POLICY, run)
+        runs.append(str(run))
+    out = tmp_path / "report"
+    run_script(
+        "evaluate.py",
+        *runs,
+        *("--baselines", "four-view", "--episodes", "2", "--reconstruct-episodes", "0"),
+        *("--out", str(out)),
+    )
+    section = read_report(out)["environments"]["ViewPlanning-v0"]
+    (aggregate,) = section["aggregates"]
+    assert aggregate["group"] == "ppo" and len(aggregate["runs"]) == 2
+    finals = [e["coverage"] for c in section["contestants"][:2] for e in c["episodes"]]
+    assert min(finals) <= aggregate["iqm"] <= max(finals)
+    assert_ci_holds_mean({"mean": aggregate["iqm"], "ci95": aggregate["iqm_ci95"]})
+    improvement = aggregate["probability_of_improvement"]
+    assert improvement["over"] == "four-view" and 0.0 <= improvement["value"] <= 1.0
+    policy = [e["coverage"] for e in section["contestants"][0]["episodes"]]
+    baseline = [e["coverage"] for e in section["contestants"][2]["episodes"]]
+    expected = np.mean(
+        [1.0 if p > b else 0.5 if p == b else 0.0 for p, b in zip(policy, baseline, strict=True)]
+    )
+    assert improvement["value"] == pytest.approx(expected)
+
+
+# --- bad input --------------------------------------------------------------------------------
+
+
+def evaluate_fails(*args: str, out: Path | None = None) -> str:
+    """stderr of an evaluate.py run that must exit with status 2 (a usage error)."""
+    out = out or Path("/nonexistent/never-written")
+    result = run_script(
+        "evaluate.py", "--episodes", "1", "--out", str(out), *args, check=False, timeout=300
+    )
+    assert result.returncode == 2, result.stderr[-2000:]
+    return result.stderr
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--env", "ViewPlaning-v0", "four-view"], "did you mean 'ViewPlanning-v0'"),
+        (["--env", "ViewPlanning-v0", "four-veiw"], "did you mean 'four-view'"),
+        (["--env", "InstrumentGrasp-v0", "--baselines", "scripted"], "scripted-grasp"),
+        (["runs/no/such/run"], "does not exist"),
+        ([], "nothing to evaluate"),
+        (
+            ["--env", "ViewPlanning-v0", "--env-kwargs", "view_budgt=3"],
+            "did you mean 'view_budget'",
+        ),
+        (["--env", "ViewPlanning-v0", "--episodes", "0"], "--episodes must be at least 1"),
+    ],
+)
+def test_bad_input_exits_with_a_message_naming_the_problem(args, message):
+    assert message in evaluate_fails(*args)
+
+
+@pytest.mark.slow
+def test_a_model_that_does_not_fit_its_env_fails_before_any_episode(tmp_path):
+    out = tmp_path / "report"
+    stderr = evaluate_fails(str(SHIPPED_VIEW_POLICY), "--env-kwargs", "view_budget=6", out=out)
+    assert "does not fit ViewPlanning-v0" in stderr and "view_history" in stderr
+    assert not out.exists()
+
+
+def test_a_corrupt_model_zip_fails_cleanly(tmp_path):
+    run = tmp_path / "ppo_run"
+    shutil.copytree(SHIPPED_VIEW_POLICY, run)
+    model = run / run_folder.BEST_MODEL
+    model.write_bytes(model.read_bytes()[:1000])
+    assert "is not a readable PPO model zip" in evaluate_fails(str(run))
+
+
+def test_a_folder_that_is_not_a_run_fails_cleanly(tmp_path):
+    assert "is not a run folder" in evaluate_fails(str(tmp_path))
+
+
+@pytest.mark.slow
+def test_missing_normalizer_statistics_fail_cleanly(grasp_run, tmp_path):
+    run = tmp_path / "no_stats"
+    shutil.copytree(grasp_run, run)
+    for name in (run_folder.BEST_NORMALIZER, run_folder.FINAL_NORMALIZER):
+        (run / name).unlink()
+    assert "statistics" in evaluate_fails(str(run)) and "missing" in evaluate_fails(str(run))
+
+
+@pytest.mark.slow
+def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp_run, tmp_path):
+    lone = tmp_path / "policy.zip"
+    shutil.copy(grasp_run / run_folder.FINAL_MODEL, lone)
+    assert "pass --env" in evaluate_fails(str(lone))
+    out = tmp_path / "report"
+    in_run = grasp_run / run_folder.FINAL_MODEL
+    run_script(
+        "evaluate.py",
+        *(str(lone), str(in_run), "--env", "InstrumentGrasp-v0"),
+        *("--baselines", "none", "--episodes", "1", "--out", str(out)),
+    )
+    contestants = read_report(out)["environments"]["InstrumentGrasp-v0"]["contestants"]
+    assert [(c["group"], c["kind"]) for c in contestants] == [("sac", "policy")] * 2
+    # Inside its run folder the same file brings the run's config (and normaliser) with it.
+    assert contestants[0]["training_seed"] is None and contestants[1]["training_seed"] == 0
+    assert (
+        contestants[0]["episodes"][0]["instrument"] == contestants[1]["episodes"][0]["instrument"]
+    )
