@@ -30,9 +30,12 @@ install: $(VENV)/.installed
 run: $(VENV)/.installed
 	$(BIN)/python train.py
 
-# The committed evaluation report of the shipped policies (reports/shipped/report.md).
+# The committed evaluation report (reports/shipped/report.md): the shipped policies and the
+# reference baselines of both environments, 100 held-out episodes each.
+SHIPPED_POLICIES := $(patsubst %/config.yml,%,$(sort $(wildcard policies/*/*/config.yml)))
 report: $(VENV)/.installed
-	$(BIN)/python evaluate.py $(patsubst %/config.yml,%,$(sort $(wildcard policies/*/*/config.yml))) --out reports/shipped --save-reconstructions 1 --video
+	$(BIN)/python evaluate.py $(SHIPPED_POLICIES) --env InstrumentGrasp-v0 \
+		--out reports/shipped --save-reconstructions 1 --video
 
 demo: $(VENV)/.installed
 	$(BIN)/python -m liuxing_envs.demo --out outputs/demo

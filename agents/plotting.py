@@ -172,7 +172,8 @@ def plot_grasp_outcomes(path: Path, summaries: dict) -> Path:
             x + (index - 1) * width,
             rates,
             width,
-            yerr=[rates - lows, highs - rates],
+            # Wilson bounds can sit a rounding error inside a 0% or 100% rate.
+            yerr=np.clip([rates - lows, highs - rates], 0.0, None),
             capsize=3,
             label=name,
             color=("C2", "C1", "C3")[index],

@@ -101,6 +101,9 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
             for env_id in dict.fromkeys(c.env_id for c in contestants)
         },
     }
+    # The figures and videos come after every episode: write the numbers first, so that a
+    # failure drawing them loses nothing.
+    _write_json(report, out)
     figures = _figures(report, out, settings)
     if settings.video_episodes:
         figures["videos"] = [
@@ -109,9 +112,13 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         ]
     report["figures"] = figures
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
-    (out / REPORT_JSON).write_text(json.dumps(report, indent=1, default=_json_default))
+    _write_json(report, out)
     (out / REPORT_MD).write_text(markdown(report))
     return report
+
+
+def _write_json(report: dict, out: Path) -> None:
+    (out / REPORT_JSON).write_text(json.dumps(report, indent=1, default=_json_default))
 
 
 # ---------------------------------------------------------------------- running

@@ -49,7 +49,10 @@ def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float
     half = (
         z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
     )
-    return centre - half, centre + half
+    # Exact at the ends: floating point would put the bound a rounding error inside 0 or 1.
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return low, high
 
 
 def iqm(scores) -> float:

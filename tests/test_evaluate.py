@@ -17,6 +17,7 @@ from agents.statistics import (
     iqm,
     probability_of_improvement,
     stratified_bootstrap_ci,
+    wilson_interval,
 )
 from tests.scripts import REPO, run_script
 
@@ -48,6 +49,14 @@ def assert_ci_holds_mean(entry: dict, key: str = "mean") -> None:
 
 
 # --- statistics -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("trials", [2, 50, 100, 1000])
+def test_wilson_interval_holds_the_rate_exactly_at_zero_and_one(trials):
+    assert wilson_interval(trials, trials)[1] == 1.0
+    assert wilson_interval(0, trials)[0] == 0.0
+    low, high = wilson_interval(trials // 2, trials)
+    assert 0.0 < low < 0.5 < high < 1.0
 
 
 def test_iqm_is_the_mean_of_the_middle_half():
