@@ -82,7 +82,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     # A scheduler's SIGTERM (pre-emption, `kill`) saves a checkpoint just as Ctrl-C does.
+    # SIGINT gets the same handler explicitly: a process started in the background by a
+    # non-interactive shell inherits SIGINT ignored, and Python then leaves it ignored.
     signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, _interrupt)
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
     from agents import training
 
