@@ -21,7 +21,7 @@ from agents import run_folder
 from agents.config import ConfigError, closest, require_known
 from agents.evaluation import SB3Policy, make_env, task_for
 from agents.grasp_baselines import GRASP_BASELINES
-from agents.training import ALGO_CLASSES
+from agents.training import ALGO_CLASSES, check_env_kwargs
 from agents.view_baselines import BASELINES as VIEW_BASELINES
 
 #: Baselines by environment. ``greedy-oracle`` reads the ground truth: reported as a
@@ -162,6 +162,11 @@ def check_fits(contestant: Contestant, env) -> None:
                 f"{contestant.env_kwargs or '{}'}: its {what} space is {_describe(actual)}, "
                 f"the environment's is {_describe(expected)}"
             )
+
+
+def slug(label: str) -> str:
+    """``label`` as a file or folder name."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
 
 
 def unique_labels(contestants: Sequence[Contestant]) -> None:
@@ -313,8 +318,6 @@ def build_contestants(
     environment run in its first policy's (so the same view budget, say), plus what they
     read. Every contestant is put on ``splits[env_id]`` (default ``held_out``) unless its
     kwargs name objects or instruments explicitly."""
-    from agents.training import check_env_kwargs
-
     env_kwargs = dict(env_kwargs or {})
     splits = dict(splits or {})
     contestants: list[Contestant] = []

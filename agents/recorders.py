@@ -96,8 +96,14 @@ class GraspRecorder:
 
     def begin(self, env, info: dict) -> None:
         scene = env.unwrapped
-        self.dt = scene.substeps * scene.world.model.opt.timestep
+        self.dt = scene.dt
         self.target_height = scene.target_height
+        #: The env's limits and control period, for the report's figures.
+        self.limits = {
+            "force_limit": scene.force_limit,
+            "hard_limit": scene.hard_limit,
+            "dt": scene.dt,
+        }
         self.forces: list[float] = []
         self.lift = 0.0
         self.time_to_lift = None

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import plotting, run_folder
-from agents.contestants import Contestant, check_fits, make_checked_env
+from agents.contestants import Contestant, check_fits, make_checked_env, slug
 from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
 from agents.recorders import COVERAGE_LEVELS, GraspRecorder, ViewPlanningRecorder
 from agents.statistics import (
@@ -69,18 +69,20 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
             progress.set_description(contestant.label[:30])
             env = envs[_env_key(contestant)]
             task = task_for(contestant.env_id)
+            recorder = _recorder(contestant, settings, out)
             episodes = run_episodes(
                 env,
                 contestant.make_policy(env),
                 seeds,
                 (task.metric, *task.extra_metrics),
                 deterministic=settings.deterministic,
-                recorder=_recorder(contestant, settings, out),
+                recorder=recorder,
                 on_episode=progress.update,
             )
             results.append(
                 {
                     **_describe(contestant),
+                    "limits": getattr(recorder, "limits", {}),
                     "summary": _summary(contestant.env_id, episodes),
                     "episodes": episodes,
                 }
@@ -148,7 +150,7 @@ def _recorder(contestant: Contestant, settings: Settings, out: Path):
     if contestant.env_id == "ViewPlanning-v0":
         return ViewPlanningRecorder(
             reconstruct_episodes=settings.reconstruct_episodes,
-            save_dir=out / "reconstructions" / _slug(contestant.label),
+            save_dir=out / "reconstructions" / slug(contestant.label),
             save_episodes=min(settings.save_episodes, settings.reconstruct_episodes),
         )
     return GraspRecorder()
@@ -302,7 +304,7 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
             )
             pictures = []
             for result in results:
-                folder = out / "reconstructions" / _slug(result["label"])
+                folder = out / "reconstructions" / slug(result["label"])
                 picture = plotting.plot_reconstructions(
                     folder / "reconstructions.png", folder, result["label"]
                 )
@@ -310,7 +312,7 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
                     pictures.append(_rel(picture, out))
             figures["reconstructions"] = pictures
         else:
-            limits = _grasp_limits(results)
+            limits = results[0]["limits"]
             figures["force_traces"] = _rel(
                 plotting.plot_force_traces(
                     out / "force_traces.png",
@@ -342,26 +344,8 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
     return figures
 
 
-def _grasp_limits(results: list[dict]) -> dict:
-    """The force limits and control period of the first contestant's env (kwargs or defaults)."""
-    from liuxing_envs.envs import instrument_grasp as grasp
-
-    kwargs = results[0]["env_kwargs"]
-    force_limit = float(kwargs.get("force_limit", grasp.DEFAULT_FORCE_LIMIT))
-    factor = float(kwargs.get("hard_limit_factor", grasp.DEFAULT_HARD_LIMIT_FACTOR))
-    return {
-        "force_limit": force_limit,
-        "hard_limit": force_limit * factor,
-        "dt": 1.0 / float(kwargs.get("control_hz", grasp.DEFAULT_CONTROL_HZ)),
-    }
-
-
 def _rel(path: Path | None, out: Path) -> str | None:
     return None if path is None else str(Path(path).relative_to(out))
-
-
-def _slug(label: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in label)
 
 
 def _json_default(value):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import inspect
 import json
 import time
+from abc import abstractmethod
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -255,8 +256,9 @@ class _Periodic(BaseCallback):
     def _schedule(self) -> None:
         self.next_at = (self.num_timesteps // self.every + 1) * self.every
 
+    @abstractmethod
     def act(self) -> None:
-        raise NotImplementedError
+        """What to do every ``every`` steps."""
 
 
 class PeriodicCheckpoint(_Periodic):

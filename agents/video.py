@@ -10,6 +10,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from agents.contestants import slug
 from agents.evaluation import make_env
 
 #: ViewPlanning episodes are a handful of views: each is held on screen this long.
@@ -53,12 +54,8 @@ def record_videos(contestants, seeds: Iterable[int], out: Path) -> list[Path]:
         if contestant.env_id == "ViewPlanning-v0":
             repeat, dt = max(1, round(VIEW_SECONDS * fps)), 0.0
         else:
-            scene = env.unwrapped
-            repeat, dt = 1, scene.substeps * scene.world.model.opt.timestep
-        path = (
-            folder
-            / f"{''.join(c if c.isalnum() or c in '-_.' else '_' for c in contestant.label)}.mp4"
-        )
+            repeat, dt = 1, env.unwrapped.dt
+        path = folder / f"{slug(contestant.label)}.mp4"
         writer = None
         try:
             policy = contestant.make_policy(env)

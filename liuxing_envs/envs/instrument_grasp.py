@@ -464,6 +464,11 @@ class InstrumentGraspEnv(gym.Env):
         return world.wrist_camera_pose(qpos)
 
     # ------------------------------------------------------------------ internals
+    @property
+    def dt(self) -> float:
+        """Seconds of simulated time per control step (as Gymnasium's MuJoCo envs)."""
+        return self.substeps * self.world.model.opt.timestep
+
     def _time_limit(self) -> int:
         """Episode length: the registered (or ``gym.make``-given) limit, else the default."""
         if self.spec is not None and self.spec.max_episode_steps is not None:
