@@ -1,21 +1,34 @@
-"""Throughput benchmarks: one configuration per fresh Python process (so each reports its own
-peak resident memory and none warms caches for the next), timed under random actions."""
+"""Shared machinery of the benchmarks: one measurement per fresh Python process (so each
+reports its own peak resident memory and none warms caches for the next), random-action
+timing, and a description of the machine and library versions."""
 
 from __future__ import annotations
 
+import importlib.metadata
 import json
+import os
+import platform
 import resource
 import subprocess
 import sys
 import time
+from pathlib import Path
+
+from agents.run_folder import git_commit
+
+REPO = Path(__file__).resolve().parents[1]
 
 
-def run_in_fresh_process(module: str, *args: str) -> dict:
-    """``python -m module *args`` must print its result as a JSON object on its last line."""
-    out = subprocess.run(
-        [sys.executable, "-m", module, *args], capture_output=True, text=True, check=True
-    ).stdout
-    return json.loads(out.strip().splitlines()[-1])
+def run_in_fresh_process(module: str, *args: str, optimize: bool = False) -> dict:
+    """``python -m module *args`` must print its result as a JSON object on its last line.
+    ``optimize`` runs it as ``python -O`` (asserts stripped)."""
+    command = [sys.executable, *(["-O"] if optimize else []), "-m", module, *args]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=REPO)
+    if done.returncode != 0:
+        raise RuntimeError(
+            f"{' '.join(command)} failed with exit status {done.returncode}:\n{done.stderr[-3000:]}"
+        )
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def peak_rss_mib() -> float:
@@ -31,20 +44,70 @@ def random_action_throughput(env, steps: int, repeats: int, warmup: int) -> dict
     env.reset(seed=0)  # seeds the episode stream
 
     def run(count: int) -> float:
-        done, start = True, time.perf_counter()
-        for _ in range(count):
-            if done:
-                env.reset()
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            done = terminated or truncated
-        return count / (time.perf_counter() - start)
+        return count / random_steps(env, count)
 
     run(warmup)
     rates = sorted(run(steps) for _ in range(repeats))
     env.close()
+    return {**spread(rates), "mib": peak_rss_mib()}
+
+
+def random_steps(env, count: int) -> float:
+    """Seconds taken by ``count`` steps of the env's seeded random actions, each run starting
+    a fresh episode (the env must have been reset with a seed once)."""
+    done, start = True, time.perf_counter()
+    for _ in range(count):
+        if done:
+            env.reset()
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        done = terminated or truncated
+    return time.perf_counter() - start
+
+
+def spread(values) -> dict:
+    """Median, min and max of a few repeated measurements."""
+    values = sorted(values)
+    return {"median": values[len(values) // 2], "min": values[0], "max": values[-1]}
+
+
+def machine() -> dict:
+    """What the figures were measured on: CPU, cores, memory, OS, Python, library versions,
+    the rendering back end and the git commit."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    try:
+        pages = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        memory = f"{pages / 2**30:.0f} GiB"
+    except (ValueError, OSError):
+        memory = "unknown"
+    versions = {}
+    for package in (
+        "mujoco",
+        "gymnasium",
+        "numpy",
+        "stable_baselines3",
+        "torch",
+        "open3d-cpu",
+        "gymnasium-robotics",
+    ):
+        try:
+            versions[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            continue
     return {
-        "median": rates[len(rates) // 2],
-        "min": rates[0],
-        "max": rates[-1],
-        "mib": peak_rss_mib(),
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "memory": memory,
+        "os": f"{platform.system()} {platform.release()}",
+        "python": platform.python_version(),
+        "versions": versions,
+        "MUJOCO_GL": os.environ.get("MUJOCO_GL", ""),
+        "commit": git_commit(REPO) or "unknown",
+        "date": time.strftime("%Y-%m-%d %H:%M"),
     }

@@ -229,8 +229,10 @@ class CoverageTracker:
         pt = np.ascontiguousarray(points.T)
         cells = np.floor((pt - self._origin[:, None]) * (1.0 / self._cell))
         # A point within epsilon of a sample lies in a neighbour cell of it, which is inside
-        # [0, dims); points elsewhere cannot cover anything.
-        inside = np.all((cells >= 0) & (cells < self._dims[:, None]), axis=0)
+        # [0, dims); points elsewhere cannot cover anything. (ANDing the three rows is
+        # cheaper than np.all(axis=0).)
+        ok = (cells >= 0) & (cells < self._dims[:, None])
+        inside = ok[0] & ok[1] & ok[2]
         if not inside.all():
             pt = np.compress(inside, pt, axis=1)
             cells = np.compress(inside, cells, axis=1)
@@ -240,31 +242,45 @@ class CoverageTracker:
         keys = cells[0] * self._strides[0] + cells[1] * self._strides[1] + cells[2]
         # Sorted needles make searchsorted several times faster (cache-friendly).
         point = np.argsort(keys)
-        keys = keys[point]
+        keys = keys.take(point)
         pos = np.searchsorted(self._cell_keys, keys)
         np.minimum(pos, self._cell_keys.size - 1, out=pos)
-        match = self._cell_keys[pos] == keys
-        point, pos = point[match], pos[match]
-        begin = self._cell_ptr[pos]
-        lengths = self._cell_ptr[pos + 1] - begin
+        match = self._cell_keys.take(pos) == keys
+        if not match.all():
+            point, pos = point[match], pos[match]
+        begin = self._cell_ptr.take(pos)
+        lengths = self._cell_ptr.take(pos + 1) - begin
         ends = np.cumsum(lengths)
         total = int(ends[-1]) if ends.size else 0
         if total == 0:
             return np.empty(0, dtype=np.intp)
         # Expand every point into its (point, registered sample) pairs without a loop:
-        # entry = begin[point] + rank within the point's run.
+        # entry = begin[point] + rank within the point's run. The pairs are many (tens per
+        # point), so every gather below is an np.take (cheaper than fancy indexing), index
+        # lists come from np.flatnonzero once instead of a boolean index per array, and
+        # arithmetic is in place.
+        entry = np.repeat(begin - (ends - lengths), lengths)
+        entry += np.arange(total)
+        pair_sample = self._cell_samples.take(entry)
         pair_point = np.repeat(point, lengths)
-        entry = np.arange(total) + np.repeat(begin - (ends - lengths), lengths)
-        pair_sample = self._cell_samples[entry]
-        todo = ~self._done[pair_sample]
+        todo = self._done.take(pair_sample)
+        np.logical_not(todo, out=todo)
         if not todo.all():
-            pair_point = pair_point[todo]
-            pair_sample = pair_sample[todo]
+            todo = np.flatnonzero(todo)
+            pair_sample = pair_sample.take(todo)
+            pair_point = pair_point.take(todo)
+        # Squared distances, accumulated in the same order as
+        # (sx - px) ** 2 + (sy - py) ** 2 + (sz - pz) ** 2, so the same floats.
         st = self._samples_t
-        d2 = (st[0][pair_sample] - pt[0][pair_point]) ** 2
-        d2 += (st[1][pair_sample] - pt[1][pair_point]) ** 2
-        d2 += (st[2][pair_sample] - pt[2][pair_point]) ** 2
-        return pair_sample[d2 <= self._eps2]
+        d2 = st[0].take(pair_sample)
+        d2 -= pt[0].take(pair_point)
+        d2 *= d2
+        for c in (1, 2):
+            d = st[c].take(pair_sample)
+            d -= pt[c].take(pair_point)
+            d *= d
+            d2 += d
+        return pair_sample.take(np.flatnonzero(d2 <= self._eps2))
 
     # -- kdtree method -----------------------------------------------------------------------
 

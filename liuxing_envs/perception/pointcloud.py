@@ -50,6 +50,29 @@ def _cached_rays(
     return rays
 
 
+@functools.lru_cache(maxsize=32)
+def _cached_rays_t(*key) -> np.ndarray:
+    # The same rays, coordinate-major (3, height * width) and computed once per intrinsics:
+    # depth_to_camera_points scales each coordinate row by the depths, which numpy does
+    # several times faster than (N, 3) * (N, 1).
+    rays_t = np.ascontiguousarray(_cached_rays(*key).reshape(-1, 3).T)
+    rays_t.setflags(write=False)
+    return rays_t
+
+
+def _ray_key(intrinsics: CameraIntrinsics, normalize: str) -> tuple:
+    """The arguments of the ray caches for these intrinsics."""
+    return (
+        int(intrinsics.width),
+        int(intrinsics.height),
+        float(intrinsics.fx),
+        float(intrinsics.fy),
+        float(intrinsics.cx),
+        float(intrinsics.cy),
+        normalize,
+    )
+
+
 def camera_rays(intrinsics: CameraIntrinsics, normalize: RayNormalization = "z") -> np.ndarray:
     """Per-pixel ray directions in the MuJoCo camera frame.
 
@@ -68,15 +91,7 @@ def camera_rays(intrinsics: CameraIntrinsics, normalize: RayNormalization = "z")
     """
     if normalize not in ("z", "unit"):
         raise ValueError(f"normalize must be 'z' or 'unit', got {normalize!r}")
-    return _cached_rays(
-        int(intrinsics.width),
-        int(intrinsics.height),
-        float(intrinsics.fx),
-        float(intrinsics.fy),
-        float(intrinsics.cx),
-        float(intrinsics.cy),
-        normalize,
-    )
+    return _cached_rays(*_ray_key(intrinsics, normalize))
 
 
 def _check_depth(depth: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
@@ -114,8 +129,18 @@ def depth_to_camera_points(
     """
     depth = _check_depth(depth, intrinsics)
     mask = np.isfinite(depth) & (depth > 0)
-    rays = camera_rays(intrinsics, "z")
-    points = rays[mask] * depth[mask].astype(np.float64)[:, None]
+    rays_t = _cached_rays_t(*_ray_key(intrinsics, "z"))
+    depths = depth.reshape(-1)
+    if not mask.all():  # else every pixel is valid (typical: the table fills the view)
+        # Pixel indices in row-major order; np.take is several times faster than a 2-D
+        # boolean index of the (height, width, 3) rays.
+        valid = np.flatnonzero(mask)
+        rays_t = rays_t.take(valid, axis=1)
+        depths = depths.take(valid)
+    # The same products as rays[mask] * depth[mask][:, None], written through the
+    # transposed view so the result is the usual C-ordered (N, 3) array.
+    points = np.empty((depths.size, 3), dtype=np.float64)
+    np.multiply(rays_t, depths.astype(np.float64), out=points.T)
     if return_mask:
         return points, mask
     return points
@@ -127,7 +152,7 @@ def as_points(points, name: str = "points", *, finite: bool = False) -> np.ndarr
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3), got {points.shape}")
-    if finite and not np.all(np.isfinite(points)):
+    if finite and not np.isfinite(points).all():  # the method skips np.all's dispatch
         raise ValueError(f"{name} must be finite (drop invalid depth pixels first)")
     return points
 
@@ -153,7 +178,12 @@ def transform_points(points: np.ndarray, position: np.ndarray, rotation: np.ndar
         rotation = rotation.reshape(3, 3)
     if rotation.shape != (3, 3):
         raise ValueError(f"rotation must have shape (3, 3) or (9,), got {rotation.shape}")
-    return points @ rotation.T + position
+    moved = points @ rotation.T
+    # In place and one column at a time: broadcasting a (3,) row over (N, 3) is about twice
+    # as slow in numpy, and the sums are the same.
+    for c in range(3):
+        moved[:, c] += position[c]
+    return moved
 
 
 def crop_points(
@@ -167,9 +197,29 @@ def crop_points(
     points = as_points(points)
     lower = _check_vector("lower", lower)
     upper = _check_vector("upper", upper)
-    if np.any(lower > upper):
+    if (lower > upper).any():
         raise ValueError(f"crop box has lower > upper on some axis: lower={lower}, upper={upper}")
-    mask = np.all((points >= lower) & (points <= upper), axis=1)
+    # Contiguous coordinate rows: see box_mask_t.
+    mask = box_mask_t(np.ascontiguousarray(points.T), lower, upper)
+    kept = np.compress(mask, points, axis=0)  # = points[mask], a little cheaper
     if return_mask:
-        return points[mask], mask
-    return points[mask]
+        return kept, mask
+    return kept
+
+
+def box_mask_t(points_t: np.ndarray, lower, upper) -> np.ndarray:
+    """``(N,)`` mask of the points inside the box ``lower <= p <= upper`` (bounds inclusive),
+    from coordinate-major ``(3, N)`` points; NaN coordinates compare False, so drop out.
+
+    Equals ``np.all((points >= lower) & (points <= upper), axis=1)`` on the ``(N, 3)``
+    points, which numpy runs several times slower (it loops over rows of 3 values, then
+    reduces along that short axis). No validation: for callers that checked their input.
+    """
+    x, y, z = points_t
+    mask = x >= lower[0]
+    mask &= x <= upper[0]
+    mask &= y >= lower[1]
+    mask &= y <= upper[1]
+    mask &= z >= lower[2]
+    mask &= z <= upper[2]
+    return mask

@@ -178,6 +178,11 @@ class Arm:
             [_require_id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in ARM_JOINT_NAMES]
         )
         self._qpos_idx = model.jnt_qposadr[joint_ids].copy()
+        # Writing a slice costs a fifth of a fancy-index write: it matters in the
+        # planning loop, which sets the joints dozens of times per path.
+        first = int(self._qpos_idx[0])
+        contiguous = np.array_equal(self._qpos_idx, np.arange(first, first + len(joint_ids)))
+        self._qpos_at = slice(first, first + len(joint_ids)) if contiguous else self._qpos_idx
         self._dof_idx = model.jnt_dofadr[joint_ids].copy()
         self._actuator_ids = np.array(
             [_require_id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in ARM_ACTUATOR_NAMES]
@@ -249,10 +254,10 @@ class Arm:
         self._pose_scratch(last_free)  # the world (objects) is copied once per path
         # The hot loop of planning (dozens of waypoints per path): locals, and the contact
         # filter only runs when MuJoCo found any contact at all.
-        qpos, qpos_idx = d.qpos, self._qpos_idx
+        qpos, qpos_at = d.qpos, self._qpos_at
         kinematics, collision = mujoco.mj_kinematics, mujoco.mj_collision
         for k, q in enumerate(waypoints):
-            qpos[qpos_idx] = q
+            qpos[qpos_at] = q
             kinematics(m, d)
             collision(m, d)
             if d.ncon:
@@ -617,7 +622,7 @@ class Arm:
         d.qpos[:] = self.data.qpos
         d.mocap_pos[:] = self.data.mocap_pos
         d.mocap_quat[:] = self.data.mocap_quat
-        d.qpos[self._qpos_idx] = qpos
+        d.qpos[self._qpos_at] = qpos
         mujoco.mj_kinematics(self.model, d)
         return d
 

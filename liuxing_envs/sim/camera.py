@@ -360,6 +360,11 @@ class _Backend(Protocol):
     def close(self) -> None: ...
 
 
+def _ray_cutoff(intrinsics: CameraIntrinsics, cos_widest_ray: float) -> float:
+    """Longest ray length worth casting: ``max_depth`` reached on the widest ray, with margin."""
+    return _RAY_CUTOFF_MARGIN * intrinsics.max_depth / cos_widest_ray
+
+
 def _group_mask(groups: Sequence[int]) -> np.ndarray:
     mask = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
     mask[list(groups)] = 1
@@ -471,14 +476,17 @@ class _RaycastBackend:
         self._nray = unit_rays.shape[0]
         self._geomid = np.empty(self._nray, dtype=np.int32)
         self._dist = np.empty(self._nray, dtype=np.float64)
-        self._cutoff = _RAY_CUTOFF_MARGIN * intrinsics.max_depth / float(self._cos_axis.min())
+        self._cutoff = _ray_cutoff(intrinsics, float(self._cos_axis.min()))
 
-    def render(self, data: mujoco.MjData, model: mujoco.MjModel | None = None) -> np.ndarray:
+    def render(
+        self, data: mujoco.MjData, scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None
+    ) -> np.ndarray:
         position = np.array(data.cam_xpos[self._camera_id], dtype=np.float64)
         rotation = data.cam_xmat[self._camera_id].reshape(3, 3)
         vec = np.ascontiguousarray(self._rays_cam @ rotation.T).reshape(-1)
+        model, data = (self._model, data) if scene is None else scene
         mujoco.mj_multiRay(
-            self._model if model is None else model,
+            model,
             data,
             position,
             vec,
@@ -570,6 +578,16 @@ class DepthCamera:
         self.geom_groups = groups
 
         model.cam_fovy[camera_id] = intrinsics.fovy_deg
+        # Cosine of the angle between the optical axis and the widest (corner) pixel ray.
+        self._cos_widest_ray = float(-camera_rays(intrinsics, "unit")[..., 2].max())
+        # Unit outward normals, in the camera frame, of the planes through the optical centre
+        # that bound every pixel ray: the four image edges, then the image plane (+z is back).
+        tan_y = math.tan(math.radians(intrinsics.fovy_deg) / 2)
+        tan_x = tan_y * intrinsics.width / intrinsics.height
+        planes = np.array(
+            [[1, 0, tan_x], [-1, 0, tan_x], [0, 1, tan_y], [0, -1, tan_y], [0, 0, 1]], float
+        )
+        self._view_planes = planes / np.linalg.norm(planes, axis=1, keepdims=True)
         # A non-zero sensor size makes MuJoCo project with cam_intrinsic instead of fovy.
         model.cam_sensorsize[camera_id] = 0.0
 
@@ -615,7 +633,7 @@ class DepthCamera:
         data: mujoco.MjData,
         rng: np.random.Generator | None = None,
         *,
-        model: mujoco.MjModel | None = None,
+        scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None,
     ) -> np.ndarray:
         """The ``(height, width)`` float32 z-depth image of ``data``'s state (see class doc).
 
@@ -624,10 +642,11 @@ class DepthCamera:
         from them here with :func:`mujoco.mj_camlight`. ``rng`` drives the noise model and is
         required when :attr:`noise` is enabled.
 
-        ``model`` (ray-cast backend only): the model ``data`` belongs to when it is not the
-        camera's own but a stand-in for it, e.g. the same scene compiled without bodies that
-        cannot be seen (every body costs each ray a bounding test). It must hold this camera
-        at the same index, with the same ``fovy`` and body chain.
+        ``scene`` (ray-cast backend only): a ``(model, data)`` pair whose geoms the rays are
+        cast against instead of ``data``'s own, for instance a stand-in holding only what
+        :meth:`may_see_geoms` allows to be in view (each geom and body of a model costs every ray a
+        bounding test). The camera pose is still read from ``data``; the stand-in's geoms
+        must be posed in the same world frame.
         """
         backend = self._require_open()
         if self.noise.enabled and rng is None:
@@ -635,18 +654,40 @@ class DepthCamera:
                 "DepthCamera.render: the noise model is enabled, so an rng is required, e.g. "
                 "render(data, rng=numpy.random.default_rng(seed))"
             )
-        if model is None:
-            model = self.model
-        elif not isinstance(backend, _RaycastBackend):
-            raise ValueError("DepthCamera.render: a stand-in model needs the raycast backend")
+        if scene is not None and not isinstance(backend, _RaycastBackend):
+            raise ValueError("DepthCamera.render: a stand-in scene needs the raycast backend")
         # Another DepthCamera on the same MuJoCo camera may have set a different fovy.
-        model.cam_fovy[self.camera_id] = self.intrinsics.fovy_deg
-        mujoco.mj_camlight(model, data)
-        depth = backend.render(data) if model is self.model else backend.render(data, model)
+        self.model.cam_fovy[self.camera_id] = self.intrinsics.fovy_deg
+        mujoco.mj_camlight(self.model, data)
+        depth = backend.render(data) if scene is None else backend.render(data, scene)
         crop_depth_range(depth, self.intrinsics.min_depth, self.intrinsics.max_depth)
         if self.noise.enabled:
             depth = self.noise.apply(depth, self.intrinsics, rng)
         return depth
+
+    def may_see_geoms(self, data: mujoco.MjData, geom_ids: np.ndarray) -> np.ndarray:
+        """Per geom of :attr:`model`: False when no pixel ray of the current pose can reach
+        it, so it cannot show in the image (and a ray caster may leave it out). Conservative:
+        True does not promise that the geom is in view.
+
+        A geom is out of reach when its oriented bounding box lies wholly outside one of the
+        planes through the optical centre that bound the field of view (the four image
+        edges, and the image plane itself: rays only go forward), or when its bounding
+        sphere lies beyond the ray-cast backend's ray length.
+        """
+        position, rotation = self.pose(data)
+        ids = np.asarray(geom_ids, dtype=np.intp)
+        offset = data.geom_xpos[ids] - position
+        box = self.model.geom_aabb[ids]
+        normals = self._view_planes @ rotation.T  # (5, 3) outward normals in the world
+        # Nearest point of each box to each plane (signed, > 0 outside): its centre's offset
+        # minus the half-sizes weighted by how far each box axis leans along the normal.
+        normals_in_geom = np.einsum("nji,pj->npi", data.geom_xmat[ids].reshape(-1, 3, 3), normals)
+        nearest = offset @ normals.T + np.einsum("npi,ni->np", normals_in_geom, box[:, :3])
+        nearest -= np.einsum("npi,ni->np", np.abs(normals_in_geom), box[:, 3:])
+        reach = _ray_cutoff(self.intrinsics, self._cos_widest_ray)
+        in_range = np.linalg.norm(offset, axis=1) - self.model.geom_rbound[ids] <= reach
+        return in_range & np.all(nearest <= 0.0, axis=1)
 
     def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Camera position ``(3,)`` and rotation ``(3, 3)`` (columns = camera axes) in the world.

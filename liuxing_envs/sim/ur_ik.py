@@ -14,34 +14,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from liuxing_envs.sim.kinematics import DH_A, DH_ALPHA, DH_D
+from liuxing_envs.sim.kinematics import DH_A, DH_D
 
 _D1, _D4, _D5, _D6 = DH_D[0], DH_D[3], DH_D[4], DH_D[5]
 _A2, _A3 = DH_A[1], DH_A[2]
 #: Solutions closer than this to a singularity (wrist or shoulder) are dropped, in radians
 #: of sin(theta5) / in metres of the reach test margins.
 _SINGULAR = 1e-6
-
-
-def _dh_batch(theta: np.ndarray, joint: int) -> np.ndarray:
-    """(N, 4, 4) DH transforms of one joint for a batch of angles."""
-    ct, st = np.cos(theta), np.sin(theta)
-    ca, sa = np.cos(DH_ALPHA[joint]), np.sin(DH_ALPHA[joint])
-    out = np.zeros((len(theta), 4, 4))
-    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2], out[:, 0, 3] = ct, -st * ca, st * sa, DH_A[joint] * ct
-    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2], out[:, 1, 3] = st, ct * ca, -ct * sa, DH_A[joint] * st
-    out[:, 2, 1], out[:, 2, 2], out[:, 2, 3] = sa, ca, DH_D[joint]
-    out[:, 3, 3] = 1.0
-    return out
-
-
-def _inverse(transforms: np.ndarray) -> np.ndarray:
-    rot = transforms[:, :3, :3].transpose(0, 2, 1)
-    out = np.zeros_like(transforms)
-    out[:, :3, :3] = rot
-    out[:, :3, 3] = -np.einsum("nij,nj->ni", rot, transforms[:, :3, 3])
-    out[:, 3, 3] = 1.0
-    return out
+_SIGNS = np.array([1.0, -1.0])
+_TWO_PI = 2 * np.pi
+_SHOULDER_HEIGHT = np.array([0.0, 0.0, _D1])  # origin of DH frame 1 in the base frame
 
 
 def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -65,68 +47,80 @@ def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if poses.shape[1:] != (4, 4):
         raise ValueError(f"flange_poses must be (N, 4, 4), got {poses.shape}")
     n = len(poses)
-    signs = np.array([1.0, -1.0])
+    signs = _SIGNS
 
-    x_axis, y_axis, z_axis = poses[:, :3, 0], poses[:, :3, 1], poses[:, :3, 2]
-    p = poses[:, :3, 3]
-    # The eight branches are extra batch rows (shoulder x wrist x elbow, in that order), so
-    # a single pose costs one numpy pass rather than eight.
-    # Theta 1: the wrist-2 centre lies d4 off the plane through the base axis.
-    p05 = p - _D6 * z_axis
-    radius = np.hypot(p05[:, 0], p05[:, 1])
+    # This runs once per environment step on a few dozen poses, so the cost is numpy's
+    # per-call overhead, not arithmetic: the branches are broadcast axes (n, shoulder, wrist,
+    # elbow) of one pass, and the DH chains are expanded by hand to the few entries needed.
+    rotation, p = poses[:, :3, :3], poses[:, :3, 3]
+    x_axis, y_axis, z_axis = rotation[:, :, 0], rotation[:, :, 1], rotation[:, :, 2]
     with np.errstate(invalid="ignore", divide="ignore"):
+        # Theta 1: the wrist-2 centre lies d4 off the plane through the base axis.
+        p05 = p - _D6 * z_axis
+        radius = np.hypot(p05[:, 0], p05[:, 1])
         phi1 = np.arctan2(p05[:, 1], p05[:, 0])
         phi2 = np.arccos(_D4 / radius)  # NaN where the wrist is inside the shoulder offset
-    theta1 = phi1[:, None] + signs * phi2[:, None] + np.pi / 2  # (n, shoulder)
-    s1, c1 = np.sin(theta1), np.cos(theta1)
-    # Theta 5 from the flange position seen along the rotated shoulder axis.
-    with np.errstate(invalid="ignore"):
+        theta1 = phi1[:, None] + signs * phi2[:, None] + np.pi / 2  # (n, shoulder)
+        s1, c1 = np.sin(theta1), np.cos(theta1)
+        # Theta 5 from the flange position seen along the rotated shoulder axis.
         cos5 = (p[:, 0, None] * s1 - p[:, 1, None] * c1 - _D4) / _D6
         base5 = np.arccos(np.clip(cos5, -1.0, 1.0))
-    base5[np.abs(cos5) > 1.0 + 1e-9] = np.nan
-    theta5 = base5[:, :, None] * signs  # (n, shoulder, wrist)
-    s5 = np.sin(theta5)
-    singular = np.abs(s5) < _SINGULAR
-    # Row 3 of R16 = Rz(theta234) Ry(-theta5) Rz(theta6) is (s5 c6, -s5 s6, c5), and it
-    # equals z1 . R06 with z1 = (s1, -c1, 0): theta6 follows from the x and y columns.
-    x_on_z1 = x_axis[:, 0, None] * s1 - x_axis[:, 1, None] * c1
-    y_on_z1 = y_axis[:, 0, None] * s1 - y_axis[:, 1, None] * c1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        theta6 = np.arctan2(-y_on_z1[:, :, None] / s5, x_on_z1[:, :, None] / s5)
-    theta6 = np.where(singular, 0.0, theta6)
-    # The three parallel joints: a planar 3R problem in frame 1.
-    theta1 = np.broadcast_to(theta1[:, :, None], theta5.shape).reshape(-1)
-    theta5, theta6, singular = theta5.reshape(-1), theta6.reshape(-1), singular.reshape(-1)
-    t14 = (
-        _inverse(_dh_batch(theta1, 0))
-        @ np.repeat(poses, 4, axis=0)
-        @ _inverse(_dh_batch(theta6, 5))
-        @ _inverse(_dh_batch(theta5, 4))
-    )
-    p13 = (t14 @ np.array([0.0, -_D4, 0.0, 1.0]))[:, :3]
-    reach = np.einsum("ni,ni->n", p13, p13)
-    with np.errstate(invalid="ignore"):
-        cos3 = (reach - _A2**2 - _A3**2) / (2 * _A2 * _A3)
-        theta3 = (np.arccos(cos3)[:, None] * signs).reshape(-1)  # (n * 8,)
-        theta2 = -np.repeat(np.arctan2(p13[:, 1], -p13[:, 0]), 2) + np.arcsin(
-            _A3 * np.sin(theta3) / np.repeat(np.sqrt(reach), 2)
+        base5[np.abs(cos5) > 1.0 + 1e-9] = np.nan
+        theta5 = base5[:, :, None] * signs  # (n, shoulder, wrist)
+        s5, c5 = np.sin(theta5), np.cos(base5)[:, :, None]
+        singular = np.abs(s5) < _SINGULAR
+        # Row 3 of R16 = Rz(theta234) Ry(-theta5) Rz(theta6) is (s5 c6, -s5 s6, c5), and it
+        # equals z1 . R06 with z1 = (s1, -c1, 0): theta6 follows from the x and y columns.
+        x_on_z1 = (x_axis[:, 0, None] * s1 - x_axis[:, 1, None] * c1)[:, :, None]
+        y_on_z1 = (y_axis[:, 0, None] * s1 - y_axis[:, 1, None] * c1)[:, :, None]
+        theta6 = np.arctan2(-y_on_z1 / s5, x_on_z1 / s5)  # singular rows are blanked below
+        s6, c6 = np.sin(theta6), np.cos(theta6)
+        # The three parallel joints: a planar 3R problem in frame 1. T14 = T10 T06 T65 T54 is
+        # needed only for the origin of frame 3 in frame 1, p13 = T14 (0, -d4, 0, 1), and the
+        # first column of R14. With alpha = +-pi/2 or 0 the inverse DH transforms are signed
+        # permutations, so both are R10 R06 applied to a short vector (and a translation):
+        #   T06 T65 T54 (0, -d4, 0, 1) = p + R06 (s6 d5 - c6 s5 d4, c6 d5 + s6 s5 d4, -d6 - c5 d4)
+        #   R06 R65 R54 e1 = R06 (c6 c5, -s6 c5, -s5)
+        # and R10 = [[c1, s1, 0], [0, 0, 1], [s1, -c1, 0]] with T10 translating by (0, -d1, 0).
+        local = np.empty(theta6.shape + (2, 3))  # (n, shoulder, wrist, {p13, column}, xyz)
+        local[..., 0, 0] = s6 * _D5 - c6 * s5 * _D4
+        local[..., 0, 1] = c6 * _D5 + s6 * s5 * _D4
+        local[..., 0, 2] = -_D6 - c5 * _D4
+        local[..., 1, 0] = c6 * c5
+        local[..., 1, 1] = -s6 * c5
+        local[..., 1, 2] = -s5
+        in_base = (local.reshape(n, 8, 3) @ rotation.transpose(0, 2, 1)).reshape(local.shape)
+        in_base[..., 0, :] += (p - _SHOULDER_HEIGHT)[:, None, None, :]
+        # The x rows of R10 (p13 and the column at once); R10 preserves lengths for the reach.
+        along_x = c1[:, :, None, None] * in_base[..., 0] + s1[:, :, None, None] * in_base[..., 1]
+        p13_x, p13_y, column_x, column_y = (
+            along_x[..., 0],
+            in_base[..., 0, 2],
+            along_x[..., 1],
+            in_base[..., 1, 2],
         )
-    t34 = (
-        _inverse(_dh_batch(theta3, 2)) @ _inverse(_dh_batch(theta2, 1)) @ np.repeat(t14, 2, axis=0)
-    )
-    theta4 = np.arctan2(t34[:, 1, 0], t34[:, 0, 0])
-    q = np.stack(
-        [
-            np.repeat(theta1, 2),
-            theta2,
-            theta3,
-            theta4,
-            np.repeat(theta5, 2),
-            np.repeat(theta6, 2),
-        ],
-        axis=1,
-    )
-    q[np.repeat(singular, 2)] = np.nan
-    solutions = np.angle(np.exp(1j * q)).reshape(n, 8, 6)  # wrap to (-pi, pi]; NaN stays
-    valid = np.all(np.isfinite(solutions), axis=2)
+        reach = np.einsum("...i,...i->...", in_base[..., 0, :], in_base[..., 0, :])
+        cos3 = (reach - _A2**2 - _A3**2) / (2 * _A2 * _A3)
+        theta3 = np.arccos(cos3)[..., None] * signs  # (n, shoulder, wrist, elbow)
+        theta2 = (
+            np.arcsin(_A3 * np.sin(theta3) / np.sqrt(reach)[..., None])
+            - np.arctan2(p13_y, -p13_x)[..., None]
+        )
+        # R34 = Rz(theta3)^T Rz(theta2)^T R14, so theta4 is the angle of R14's first column
+        # less theta2 + theta3 (wrapped below).
+        theta4 = np.arctan2(column_y, column_x)[..., None] - theta2 - theta3
+
+        q = np.empty((n, 2, 2, 2, 6))
+        q[..., 0] = theta1[:, :, None, None]
+        q[..., 1] = theta2
+        q[..., 2] = theta3
+        q[..., 3] = theta4
+        q[..., 4] = theta5[..., None]
+        q[..., 5] = theta6[..., None]
+        q[singular] = np.nan
+        # Wrap to (-pi, pi] by whole turns; values already within [-pi, pi] (the float pi)
+        # are left untouched, which is what np.angle(np.exp(1j * q)) gives them. NaN stays.
+        q -= _TWO_PI * np.rint(q / _TWO_PI)
+    solutions = q.reshape(n, 8, 6)
+    valid = np.isfinite(solutions).all(axis=2)
     return solutions, valid

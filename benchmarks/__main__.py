@@ -1,0 +1,412 @@
+"""Speed benchmarks of liuxing_envs: one entry point, one report.
+
+Run: ``MUJOCO_GL=egl python -m benchmarks`` (about 20 minutes on 2 cores). It writes
+``benchmarks/RESULTS.md`` and the raw figures in ``benchmarks/RESULTS.json``.
+``--quick`` runs every section briefly (a smoke test of the benchmark, not a measurement);
+``--sections`` picks some.
+Run it on a quiet machine: every figure is wall-clock time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from benchmarks import peers, physics, scaling, throughput, time_split, training  # noqa: E402
+from benchmarks.isolated import machine  # noqa: E402
+from benchmarks.throughput import GRASP, GRASP_STATE, VIEW_DEFAULT, VIEW_PLANNING, Config  # noqa: E402
+
+SECTIONS = ("throughput", "split", "physics", "peers", "scaling", "training")
+DEFAULT_OUT = Path(__file__).parent / "RESULTS.md"
+
+#: Targets of the benchmark issue, as ratios measured in one run.
+VIEW_TARGET = 1000.0  # view-steps/s, default mode, 64x64, one core
+VIEW_PEER_RATIO = 7.0  # x FetchPickAndPlace-v4 with 84x84 rendering
+GRASP_PEER_RATIO = 1.0  # x FetchPickAndPlace-v4 without rendering (state obs)
+GRASP_PHYSICS_FRACTION = 0.5
+ASYNC_TWO_WORKER_SPEEDUP = 1.6
+
+
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--quick", action="store_true", help="short runs: a smoke test")
+    parser.add_argument(
+        "--sections",
+        default=",".join(SECTIONS),
+        help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)",
+    )
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="Markdown report path")
+    args = parser.parse_args(argv)
+    args.sections = [s.strip() for s in args.sections.split(",") if s.strip()]
+    unknown = sorted(set(args.sections) - set(SECTIONS))
+    if unknown:
+        parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
+    return args
+
+
+def _row(*cells) -> str:
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def _table(header: tuple, rows: list[tuple]) -> list[str]:
+    return [_row(*header), _row(*("---" for _ in header)), *(_row(*r) for r in rows), ""]
+
+
+def _rate(result: dict) -> str:
+    return f"{result['median']:.0f}"
+
+
+def _progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def run(sections: list[str], quick: bool) -> dict:
+    """Every measurement of the chosen sections, as plain data."""
+    scale, repeats = (0.1, 1) if quick else (1.0, 3)
+    results: dict = {"machine": machine(), "quick": quick}
+    if "throughput" in sections:
+        results["throughput"] = []
+        for config in throughput.CONFIGS:
+            _progress(f"throughput: {config.env_id} {config.label}")
+            measured = throughput.measure(config, repeats, scale)
+            results["throughput"].append(
+                {"env_id": config.env_id, "mode": config.label, **measured}
+            )
+    if "split" in sections:
+        results["split"] = []
+        for config in time_split.SPLIT_CONFIGS:
+            _progress(f"time split: {config.env_id} {config.label}")
+            steps = max(40, int((400 if config.env_id == VIEW_PLANNING else 1000) * scale))
+            measured = time_split.measure(config, steps)
+            results["split"].append({"env_id": config.env_id, "mode": config.label, **measured})
+    if "physics" in sections:
+        results["physics"] = []
+        dynamic = Config(VIEW_PLANNING, {**VIEW_DEFAULT.kwargs, "motion": "dynamic"})
+        for config, steps in ((GRASP_STATE, 2000), (dynamic, 200)):
+            _progress(f"physics limit: {config.env_id} {config.label}")
+            measured = physics.measure(config, max(20, int(steps * scale)), repeats)
+            results["physics"].append({"env_id": config.env_id, "mode": config.label, **measured})
+    if "peers" in sections:
+        if peers.available():
+            results["peers"] = {}
+            for render, steps in ((False, 2000), (True, 300)):
+                _progress(f"peer: {peers.PEER_ENV} render={render}")
+                key = "rgb_84" if render else "no_render"
+                results["peers"][key] = peers.measure(render, max(20, int(steps * scale)), repeats)
+        else:
+            results["peers"] = None
+    if "scaling" in sections:
+        results["scaling"] = []
+        workers = (1, 2) if quick else scaling.WORKERS
+        for config, steps in ((VIEW_DEFAULT, 200), (GRASP_STATE, 1000)):
+            for kind in scaling.KINDS:
+                for count in workers if kind != "single" else (1,):
+                    _progress(f"scaling: {config.env_id} {kind} x{count}")
+                    measured = scaling.measure(
+                        config, kind, count, max(20, int(steps * scale)), repeats
+                    )
+                    results["scaling"].append(
+                        {"env_id": config.env_id, "kind": kind, "workers": count, **measured}
+                    )
+    if "training" in sections:
+        results["training"] = {"throughput": []}
+        for env_id, algo, steps in training.RUNS:
+            _progress(f"training throughput: {env_id} {algo}")
+            measured = training.throughput(env_id, algo, max(256, int(steps * scale)))
+            results["training"]["throughput"].append({"env_id": env_id, "algo": algo, **measured})
+        if not quick:
+            _progress("training: time to beat the four-view baseline (default train.py)")
+            results["training"]["time_to_beat"] = training.time_to_beat_four_view()
+    return results
+
+
+def _find(rows: list[dict], **match) -> dict | None:
+    return next((r for r in rows if all(r.get(k) == v for k, v in match.items())), None)
+
+
+def targets(results: dict) -> list[tuple]:
+    """(target, measured, met) for every target whose inputs this run measured."""
+    out = []
+    rows = results.get("throughput") or []
+    view = _find(rows, env_id=VIEW_PLANNING, mode=VIEW_DEFAULT.label)
+    view_gl = _find(rows, env_id=VIEW_PLANNING, mode=throughput.VIEW_DEFAULT_GL.label)
+    grasp = _find(rows, env_id=GRASP, mode=GRASP_STATE.label)
+    if view:
+        best = max(view["median"], view_gl["median"] if view_gl else 0.0)
+        out.append(
+            (
+                f"ViewPlanning-v0 default mode, 64x64: >= {VIEW_TARGET:.0f} view-steps/s",
+                f"{best:.0f}",
+                best >= VIEW_TARGET,
+            )
+        )
+    peer = results.get("peers")
+    if peer and view:
+        ratio = (
+            max(view["median"], view_gl["median"] if view_gl else 0.0) / peer["rgb_84"]["median"]
+        )
+        out.append(
+            (
+                f"ViewPlanning-v0 / FetchPickAndPlace-v4 with 84x84 RGB: >= {VIEW_PEER_RATIO:.0f}x",
+                f"{ratio:.2f}x",
+                ratio >= VIEW_PEER_RATIO,
+            )
+        )
+    if peer and grasp:
+        ratio = grasp["median"] / peer["no_render"]["median"]
+        out.append(
+            (
+                "InstrumentGrasp-v0 state / FetchPickAndPlace-v4 without rendering: "
+                f">= {GRASP_PEER_RATIO:.1f}x",
+                f"{ratio:.2f}x",
+                ratio >= GRASP_PEER_RATIO,
+            )
+        )
+    limit = _find(results.get("physics") or [], env_id=GRASP)
+    if limit and grasp and limit["limit"]:
+        fraction = grasp["median"] / limit["limit"]
+        out.append(
+            (
+                f"InstrumentGrasp-v0 state: >= {GRASP_PHYSICS_FRACTION:.0%} of its physics limit",
+                f"{fraction:.0%}",
+                fraction >= GRASP_PHYSICS_FRACTION,
+            )
+        )
+    scaled = results.get("scaling") or []
+    for env_id in (VIEW_PLANNING, GRASP):
+        single = _find(scaled, env_id=env_id, kind="single")
+        two = _find(scaled, env_id=env_id, kind="gymnasium-async", workers=2)
+        if single and two:
+            speedup = two["median"] / single["median"]
+            out.append(
+                (
+                    f"{env_id}: async vector env, 2 workers on 2 cores: "
+                    f">= {ASYNC_TWO_WORKER_SPEEDUP}x one env",
+                    f"{speedup:.2f}x",
+                    speedup >= ASYNC_TWO_WORKER_SPEEDUP,
+                )
+            )
+    return out
+
+
+def report(results: dict, command: str) -> str:
+    """RESULTS.md: the machine, the command, the targets, then every table."""
+    m = results["machine"]
+    versions = ", ".join(f"{k} {v}" for k, v in m["versions"].items())
+    lines = [
+        "# Benchmark results",
+        "",
+        f"Generated by `{command}` on {m['date']} (commit {m['commit']}).",
+        ""
+        if not results["quick"]
+        else "**Quick run: a smoke test of the benchmark, not a measurement.**\n",
+        f"- Machine: {m['cpu']}, {m['cores']} cores, {m['memory']} RAM, {m['os']}, no GPU used",
+        f"- Python {m['python']}; {versions}; MUJOCO_GL={m['MUJOCO_GL']}",
+        "- Every rate is the median of repeated runs (min and max beside it), wall clock, one"
+        " process per measurement, seeded uniform random actions with resets included.",
+        "",
+    ]
+    goals = targets(results)
+    if goals:
+        lines += ["## Targets", ""]
+        lines += _table(
+            ("target", "measured", "met"), [(t, v, "yes" if ok else "**no**") for t, v, ok in goals]
+        )
+    if "throughput" in results:
+        lines += ["## Env steps per second, one env on one core", ""]
+        lines += _table(
+            ("env", "mode", "steps/s median", "min", "max", "peak RSS MiB"),
+            [
+                (
+                    r["env_id"],
+                    r["mode"],
+                    _rate(r),
+                    f"{r['min']:.0f}",
+                    f"{r['max']:.0f}",
+                    f"{r['mib']:.0f}",
+                )
+                for r in results["throughput"]
+            ],
+        )
+    if "split" in results:
+        lines += [
+            "## Where a step's time goes",
+            "",
+            "Exclusive milliseconds per env step (resets included), by phase; see"
+            " `benchmarks/time_split.py` for what each phase wraps.",
+            "",
+        ]
+        for r in results["split"]:
+            total = r["ms_per_step"]
+            phases = sorted(r["phases"].items(), key=lambda item: -item[1])
+            lines += [
+                f"**{r['env_id']}, {r['mode']}**: {total:.3f} ms per step "
+                f"({1e3 / total:.0f} steps/s with the timers on)",
+                "",
+            ]
+            lines += _table(
+                ("phase", "ms / step", "share"),
+                [(p, f"{ms:.3f}", f"{ms / total:.0%}") for p, ms in phases],
+            )
+    if "physics" in results:
+        lines += [
+            "## The physics limit",
+            "",
+            "Every `mj_step` of seeded random episodes, replayed open loop by"
+            " `mujoco.rollout` (all substeps in C). The limit is env steps/s of that replay.",
+            "",
+        ]
+        rows = []
+        for r in results["physics"]:
+            env = _find(results.get("throughput") or [], env_id=r["env_id"], mode=r["mode"])
+            fraction = f"{env['median'] / r['limit']:.0%}" if env and r["limit"] else "-"
+            rows.append(
+                (
+                    r["env_id"],
+                    r["mode"],
+                    f"{r['mj_steps_per_env_step']:.1f}",
+                    f"{r['mj_steps_per_second']:.0f}",
+                    f"{r['limit']:.0f}",
+                    f"{env['median']:.0f}" if env else "-",
+                    fraction,
+                )
+            )
+        lines += _table(
+            (
+                "env",
+                "mode",
+                "mj_steps / env step",
+                "mj_steps/s",
+                "limit env steps/s",
+                "env steps/s",
+                "env / limit",
+            ),
+            rows,
+        )
+    if "peers" in results:
+        lines += ["## Side by side: FetchPickAndPlace-v4 (Gymnasium-Robotics)", ""]
+        peer = results["peers"]
+        if peer is None:
+            lines += [
+                'Skipped: gymnasium-robotics is not installed (`pip install -e ".[bench]"`).',
+                "",
+            ]
+        else:
+            rows = [
+                (
+                    "FetchPickAndPlace-v4, no rendering",
+                    _rate(peer["no_render"]),
+                    f"{peer['no_render']['min']:.0f}",
+                    f"{peer['no_render']['max']:.0f}",
+                    f"{peer['no_render']['mib']:.0f}",
+                ),
+                (
+                    "FetchPickAndPlace-v4, 84x84 RGB each step",
+                    _rate(peer["rgb_84"]),
+                    f"{peer['rgb_84']['min']:.0f}",
+                    f"{peer['rgb_84']['max']:.0f}",
+                    f"{peer['rgb_84']['mib']:.0f}",
+                ),
+            ]
+            lines += _table(("env", "steps/s median", "min", "max", "peak RSS MiB"), rows)
+            ratios = []
+            for r in results.get("throughput") or []:
+                ratios.append(
+                    (
+                        r["env_id"],
+                        r["mode"],
+                        f"{r['median'] / peer['no_render']['median']:.2f}x",
+                        f"{r['median'] / peer['rgb_84']['median']:.2f}x",
+                    )
+                )
+            if ratios:
+                lines += _table(
+                    ("env", "mode", "vs Fetch, no rendering", "vs Fetch, 84x84 RGB"), ratios
+                )
+            lines += ["Fetch runs in a `python -O` process: see `benchmarks/peers.py` for why.", ""]
+    if "scaling" in results:
+        lines += [
+            "## Vectorised scaling",
+            "",
+            "Total env steps/s over all workers; speed-up against one env stepped in-process.",
+            "",
+        ]
+        rows = []
+        for r in results["scaling"]:
+            single = _find(results["scaling"], env_id=r["env_id"], kind="single")
+            rows.append(
+                (
+                    r["env_id"],
+                    r["kind"],
+                    r["workers"],
+                    _rate(r),
+                    f"{r['min']:.0f}",
+                    f"{r['max']:.0f}",
+                    f"{r['median'] / single['median']:.2f}x",
+                )
+            )
+        lines += _table(
+            ("env", "vector env", "workers", "steps/s median", "min", "max", "speed-up"), rows
+        )
+    if "training" in results:
+        lines += ["## Training throughput (train.py, 2 cores)", ""]
+        lines += _table(
+            ("env", "algorithm", "env steps", "seconds", "env steps/s"),
+            [
+                (
+                    r["env_id"],
+                    r["algo"],
+                    r["timesteps"],
+                    f"{r['seconds']:.1f}",
+                    f"{r['steps_per_second']:.0f}",
+                )
+                for r in results["training"]["throughput"]
+            ],
+        )
+        beat = results["training"].get("time_to_beat")
+        if beat:
+            lines += [_time_to_beat(beat), ""]
+    return "\n".join(lines)
+
+
+def _time_to_beat(beat: dict) -> str:
+    run = f"The default `python train.py` (PPO, ViewPlanning-v0, {beat['total_steps']} steps, "
+    run += f"{beat['total_seconds']:.0f} s of learning)"
+    against = (
+        f"the four-view baseline's {beat['baseline_coverage']:.3f} mean coverage on the same "
+        f"{beat['eval_episodes']} periodic-evaluation episodes (train objects, evaluated every "
+        f"{beat['eval_freq']} steps)"
+    )
+    if beat["beaten_at_seconds"] is None:
+        return f"{run} never beat {against}."
+    return (
+        f"Time to beat the four-view baseline: {run} first beat {against} at "
+        f"{beat['beaten_at_steps']} env steps, {beat['beaten_at_seconds']:.0f} s into learning "
+        f"(coverage {beat['coverage_then']:.3f}; the time includes the evaluations)."
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse(argv)
+    results = run(args.sections, args.quick)
+    command = "MUJOCO_GL=egl python -m benchmarks " + shlex.join(
+        sys.argv[1:] if argv is None else argv
+    )
+    text = report(results, command.strip())
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(text)
+    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1, default=str))
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""The physics limit: how fast MuJoCo alone steps our models through the same trajectories.
+
+Each configuration runs in a fresh process. The env runs seeded random episodes while every
+``mj_step`` it makes is recorded (its model, the controls, the step count) from the state
+each episode starts in; :func:`mujoco.rollout.rollout` then replays those controls open
+loop, all substeps in C with no Python in between. The limit is env steps per second of that
+replay: what the env could reach if everything but physics were free. InstrumentGrasp
+switches noslip iterations on while a pad touches something; the replay keeps the model's
+setting (off), so the limit is, if anything, optimistic, and the fraction conservative.
+ViewPlanning-v0 steps physics only in ``motion="dynamic"``; in the default kinematic mode its
+MuJoCo work is ray casting, kinematics and collision checks, shown by the time split.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+from mujoco import rollout  # noqa: E402
+
+from benchmarks.isolated import run_in_fresh_process  # noqa: E402
+from benchmarks.throughput import Config, make_env  # noqa: E402
+
+STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+class _Recorder:
+    """Wraps ``mujoco.mj_step`` to record each episode's physics as a replayable segment."""
+
+    def __init__(self) -> None:
+        self.segments: list[dict] = []
+        self.recording = False
+        self._step = mujoco.mj_step
+        mujoco.mj_step = self._recorded_step
+
+    def _recorded_step(self, model, data, nstep: int = 1) -> None:
+        if self.recording:
+            if not self.segments or self.segments[-1]["model"] is not model:
+                state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
+                mujoco.mj_getState(model, data, state, STATE_SPEC)
+                self.segments.append({"model": model, "state": state, "controls": []})
+            self.segments[-1]["controls"].append(np.repeat(data.ctrl[None], nstep, axis=0))
+        self._step(model, data, nstep=nstep)
+
+    def new_episode(self) -> None:
+        self.segments.append({"model": None})  # a sentinel: the next step opens a segment
+
+    def close(self) -> None:
+        mujoco.mj_step = self._step
+
+
+def limit(config: Config, steps: int, repeats: int) -> dict:
+    """Env steps/s of the recorded physics replayed by rollout, and mj_steps per env step."""
+    env = make_env(config)
+    env.action_space.seed(0)
+    recorder = _Recorder()
+    env.reset(seed=0)
+    done = False
+    for _ in range(steps):
+        if done:
+            recorder.recording = False
+            env.reset()
+        if not recorder.recording:
+            recorder.new_episode()
+            recorder.recording = True
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        done = terminated or truncated
+    recorder.close()
+    segments = [s for s in recorder.segments if s["model"] is not None]
+    data = {id(s["model"]): mujoco.MjData(s["model"]) for s in segments}
+    controls = [np.concatenate(s["controls"]) for s in segments]
+    substeps = sum(len(c) for c in controls)
+    if substeps == 0:
+        env.close()
+        return {"mj_steps_per_env_step": 0.0, "limit": None}
+
+    def replay() -> float:
+        start = time.perf_counter()
+        for segment, control in zip(segments, controls, strict=True):
+            model = segment["model"]
+            rollout.rollout(model, data[id(model)], segment["state"][None], control[None])
+        return steps / (time.perf_counter() - start)
+
+    replay()  # warm-up
+    rates = sorted(replay() for _ in range(repeats))
+    env.close()
+    return {
+        "mj_steps_per_env_step": substeps / steps,
+        "mj_steps_per_second": rates[len(rates) // 2] * substeps / steps,
+        "limit": rates[len(rates) // 2],
+    }
+
+
+def measure(config: Config, steps: int, repeats: int = 3) -> dict:
+    payload = json.dumps({"env_id": config.env_id, "kwargs": config.kwargs})
+    return run_in_fresh_process(
+        "benchmarks.physics", "--one", payload, "--steps", str(steps), "--repeats", str(repeats)
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--one", required=True, help="a Config as JSON")
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    print(json.dumps(limit(Config(**json.loads(args.one)), args.steps, args.repeats)))
+
+
+if __name__ == "__main__":
+    main()

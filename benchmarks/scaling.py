@@ -1,0 +1,92 @@
+"""Vectorised scaling: total env steps per second with 1, 2 and 4 worker processes.
+
+Two vector envs are measured: Gymnasium's ``gym.make_vec(..., vectorization_mode="async")``
+and stable-baselines3's ``SubprocVecEnv`` (what ``train.py --vec-env subproc`` uses), each
+against one env stepped in this process. Every measurement runs in a fresh parent process,
+with seeded random actions and the vector env's own autoreset. On a machine with fewer cores
+than workers, the workers share the cores: the speed-up then measures overhead as much as
+parallelism.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+
+from benchmarks.isolated import random_action_throughput, run_in_fresh_process  # noqa: E402
+from benchmarks.throughput import Config, make_env  # noqa: E402
+
+WORKERS = (1, 2, 4)
+KINDS = ("single", "gymnasium-async", "sb3-subproc")
+
+
+def _vector_env(config: Config, kind: str, workers: int):
+    if kind == "gymnasium-async":
+        import gymnasium as gym
+
+        import liuxing_envs  # noqa: F401
+
+        return gym.make_vec(
+            config.env_id, num_envs=workers, vectorization_mode="async", **config.kwargs
+        )
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    return SubprocVecEnv([lambda: make_env(config)] * workers)
+
+
+def vector_throughput(config: Config, kind: str, workers: int, steps: int, repeats: int) -> dict:
+    """Total env steps/s (``steps`` per worker per timed run)."""
+    if kind == "single":
+        return random_action_throughput(make_env(config), steps, repeats, warmup=steps // 4)
+    env = _vector_env(config, kind, workers)
+    sb3 = kind == "sb3-subproc"
+    space = env.action_space
+    space.seed(0)
+    if sb3:
+        env.seed(0)
+        env.reset()
+    else:
+        env.reset(seed=0)
+
+    def run(count: int) -> float:
+        start = time.perf_counter()
+        for _ in range(count):
+            actions = np.stack([space.sample() for _ in range(workers)]) if sb3 else space.sample()
+            env.step(actions)
+        return count * workers / (time.perf_counter() - start)
+
+    run(max(1, steps // 4))
+    rates = sorted(run(steps) for _ in range(repeats))
+    env.close()
+    return {"median": rates[len(rates) // 2], "min": rates[0], "max": rates[-1]}
+
+
+def measure(config: Config, kind: str, workers: int, steps: int, repeats: int = 3) -> dict:
+    payload = json.dumps({"env_id": config.env_id, "kwargs": config.kwargs})
+    return run_in_fresh_process(
+        "benchmarks.scaling",
+        *("--one", payload, "--kind", kind, "--workers", str(workers)),
+        *("--steps", str(steps), "--repeats", str(repeats)),
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--one", required=True, help="a Config as JSON")
+    parser.add_argument("--kind", choices=KINDS, required=True)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--steps", type=int, default=400)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    config = Config(**json.loads(args.one))
+    print(json.dumps(vector_throughput(config, args.kind, args.workers, args.steps, args.repeats)))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,69 @@
+"""The benchmark entry point (python -m benchmarks) end to end, on short runs: it must keep
+working as the envs change, and its phase timers and physics recorder must measure what
+they claim. The figures themselves are machine-dependent and are not asserted."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from benchmarks.time_split import PhaseTimer
+from liuxing_envs.envs.instrument_grasp import DEFAULT_CONTROL_HZ, DEFAULT_TIMESTEP
+from tests.scripts import run_script
+
+
+def test_phase_timer_counts_nested_time_once():
+    class Work:
+        def outer(self):
+            time.sleep(0.02)
+            self.inner()
+
+        def inner(self):
+            time.sleep(0.03)
+
+    work, timer = Work(), PhaseTimer()
+    timer.wrap(work, "outer", "outer")
+    timer.wrap(work, "inner", "inner")
+    start = time.perf_counter()
+    work.outer()
+    elapsed = time.perf_counter() - start
+    assert timer.seconds["inner"] >= 0.03
+    assert 0.02 <= timer.seconds["outer"] < 0.03 + 0.015  # its own sleep, not inner's
+    assert sum(timer.seconds.values()) == pytest.approx(elapsed, abs=2e-3)
+
+
+@pytest.mark.slow
+def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
+    out = tmp_path / "RESULTS.md"
+    run_script("-m", "benchmarks", "--quick", "--sections", "split,physics", "--out", str(out))
+    text = out.read_text()
+    assert "Quick run" in text
+    assert "## Where a step's time goes" in text and "## The physics limit" in text
+    results = json.loads(out.with_suffix(".json").read_text())
+
+    splits = {(r["env_id"], r["mode"]): r for r in results["split"]}
+    view = splits[("ViewPlanning-v0", "raycast, kinematic, 64x64")]["phases"]
+    assert view["depth rendering"] > 0 and view["coverage"] > 0
+    grasp = splits[("InstrumentGrasp-v0", "state")]["phases"]
+    assert grasp["physics (mj_step)"] > 0 and "depth rendering" not in grasp
+    rgbd = splits[("InstrumentGrasp-v0", "rgbd, gl, 64x64")]["phases"]
+    assert rgbd["RGB rendering"] > 0
+
+    limits = {r["env_id"]: r for r in results["physics"]}
+    # Every InstrumentGrasp step is one control period of physics substeps (fewer only in the
+    # rare step a protective stop cuts short, which adds a few).
+    substeps = round(1.0 / (DEFAULT_CONTROL_HZ * DEFAULT_TIMESTEP))
+    assert limits["InstrumentGrasp-v0"]["mj_steps_per_env_step"] == pytest.approx(
+        substeps, rel=0.05
+    )
+    assert limits["InstrumentGrasp-v0"]["limit"] > 0
+    # A dynamic view moves the arm under physics for hundreds of steps.
+    assert limits["ViewPlanning-v0"]["mj_steps_per_env_step"] > 50
+
+
+def test_unknown_section_is_refused():
+    result = run_script("-m", "benchmarks", "--sections", "throughput,speed", check=False)
+    assert result.returncode == 2
+    assert "unknown section(s) ['speed']" in result.stderr and "throughput" in result.stderr
