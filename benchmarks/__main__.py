@@ -68,8 +68,9 @@ def _progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def run(sections: list[str], quick: bool) -> dict:
-    """Every measurement of the chosen sections, as plain data."""
+def run(sections: list[str], quick: bool, on_section=lambda results: None) -> dict:
+    """Every measurement of the chosen sections, as plain data; ``on_section(results)`` is
+    called after each section (so a failure late in a long run loses nothing before it)."""
     scale, repeats = (0.1, 1) if quick else (1.0, 3)
     results: dict = {"machine": machine(), "quick": quick}
     if "throughput" in sections:
@@ -80,6 +81,7 @@ def run(sections: list[str], quick: bool) -> dict:
             results["throughput"].append(
                 {"env_id": config.env_id, "mode": config.label, **measured}
             )
+    on_section(results)
     if "split" in sections:
         results["split"] = []
         for config in time_split.SPLIT_CONFIGS:
@@ -87,6 +89,7 @@ def run(sections: list[str], quick: bool) -> dict:
             steps = max(40, int((400 if config.env_id == VIEW_PLANNING else 1000) * scale))
             measured = time_split.measure(config, steps)
             results["split"].append({"env_id": config.env_id, "mode": config.label, **measured})
+    on_section(results)
     if "physics" in sections:
         results["physics"] = []
         dynamic = Config(VIEW_PLANNING, {**VIEW_DEFAULT.kwargs, "motion": "dynamic"})
@@ -94,6 +97,7 @@ def run(sections: list[str], quick: bool) -> dict:
             _progress(f"physics limit: {config.env_id} {config.label}")
             measured = physics.measure(config, max(20, int(steps * scale)), repeats)
             results["physics"].append({"env_id": config.env_id, "mode": config.label, **measured})
+    on_section(results)
     if "peers" in sections:
         if peers.available():
             results["peers"] = {}
@@ -103,6 +107,7 @@ def run(sections: list[str], quick: bool) -> dict:
                 results["peers"][key] = peers.measure(render, max(20, int(steps * scale)), repeats)
         else:
             results["peers"] = None
+    on_section(results)
     if "scaling" in sections:
         results["scaling"] = []
         workers = (1, 2) if quick else scaling.WORKERS
@@ -116,15 +121,18 @@ def run(sections: list[str], quick: bool) -> dict:
                     results["scaling"].append(
                         {"env_id": config.env_id, "kind": kind, "workers": count, **measured}
                     )
+    on_section(results)
     if "training" in sections:
         results["training"] = {"throughput": []}
         for env_id, algo, steps in training.RUNS:
             _progress(f"training throughput: {env_id} {algo}")
             measured = training.throughput(env_id, algo, max(256, int(steps * scale)))
             results["training"]["throughput"].append({"env_id": env_id, "algo": algo, **measured})
-        if not quick:
-            _progress("training: time to beat the four-view baseline (default train.py)")
-            results["training"]["time_to_beat"] = training.time_to_beat_four_view()
+        _progress("training: time to beat the four-view baseline (default train.py)")
+        results["training"]["time_to_beat"] = training.time_to_beat_four_view(
+            512 if quick else None
+        )
+    on_section(results)
     return results
 
 

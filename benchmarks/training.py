@@ -62,8 +62,9 @@ def throughput(env_id: str, algo: str, steps: int) -> dict:
     }
 
 
-def time_to_beat_four_view() -> dict:
-    """Train the default run and find its first periodic evaluation above the baseline."""
+def time_to_beat_four_view(timesteps: int | None = None) -> dict:
+    """Train the default run (``timesteps`` overrides its length) and find its first periodic
+    evaluation above the baseline."""
     sys.path.insert(0, str(REPO))
     from agents.evaluation import make_env, run_episodes
     from agents.training import PERIODIC_EVAL_SEED_OFFSET
@@ -71,14 +72,16 @@ def time_to_beat_four_view() -> dict:
 
     with tempfile.TemporaryDirectory() as folder:
         run_dir = Path(folder) / "run"
-        result = _train(["--eval-freq", str(EVAL_FREQ), "--final-episodes", "0"], run_dir)
+        length = [] if timesteps is None else ["-n", str(timesteps)]
+        eval_freq = EVAL_FREQ if timesteps is None else max(1, timesteps // 2)
+        result = _train([*length, "--eval-freq", str(eval_freq), "--final-episodes", "0"], run_dir)
         config = json.loads(json.dumps(_read_yaml(run_dir / "config.yml")))
         with open(run_dir / "evaluations.csv", newline="") as stream:
             history = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(stream)]
     first = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
     env = make_env(config["env_id"], config["env_kwargs"])
     episodes = run_episodes(
-        env, FourViewpointBaseline(), range(first, first + config["eval_episodes"]), ["coverage"]
+        env, FourViewpointBaseline(env), range(first, first + config["eval_episodes"]), ["coverage"]
     )
     env.close()
     baseline = sum(e["coverage"] for e in episodes) / len(episodes)
