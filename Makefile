@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run demo report test install clean
+.PHONY: run demo report bench test install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,12 @@ SHIPPED_POLICIES := $(patsubst %/config.yml,%,$(sort $(wildcard policies/*/*/con
 report: $(VENV)/.installed
 	$(BIN)/python evaluate.py $(SHIPPED_POLICIES) --env InstrumentGrasp-v0 \
 		--out reports/shipped --save-reconstructions 1 --video
+
+# benchmarks/RESULTS.md: throughput, time split, physics limit, FetchPickAndPlace-v4 side by
+# side, vector scaling and training throughput (about 25 minutes; run on a quiet machine).
+bench: $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e ".[bench]"
+	$(BIN)/python -m benchmarks
 
 demo: $(VENV)/.installed
 	$(BIN)/python -m liuxing_envs.demo --out outputs/demo

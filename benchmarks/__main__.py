@@ -404,15 +404,17 @@ def _time_to_beat(beat: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parse(argv)
-    results = run(args.sections, args.quick)
     command = "MUJOCO_GL=egl python -m benchmarks " + shlex.join(
         sys.argv[1:] if argv is None else argv
     )
-    text = report(results, command.strip())
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(text)
-    args.out.with_suffix(".json").write_text(json.dumps(results, indent=1, default=str))
-    print(text)
+
+    def save(results: dict) -> None:
+        args.out.write_text(report(results, command.strip()))
+        args.out.with_suffix(".json").write_text(json.dumps(results, indent=1, default=str))
+
+    run(args.sections, args.quick, on_section=save)
+    print(args.out.read_text())
     return 0
 
 
