@@ -25,18 +25,13 @@ import sys
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
-from agents.config import ConfigError, parse_assignments  # noqa: E402
+from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
 
 SPLITS = ("train", "held_out", "all")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="evaluate.py",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="\n\n".join(__doc__.split("\n\n")[1:]),
-    )
+    parser = script_parser("evaluate.py", __doc__)
     what = parser.add_argument_group("what to evaluate")
     what.add_argument(
         "sources", nargs="*", metavar="SOURCE", help="run folders, model .zip files, baselines"

@@ -21,7 +21,7 @@ import sys
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
-from agents.config import ConfigError, parse_assignments  # noqa: E402
+from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
 from agents.run_folder import RunFolderError  # noqa: E402
 
 #: Flags that define a run; a resumed run keeps the values in its config.yml.
@@ -32,12 +32,7 @@ RUN_DEFINING_FLAGS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="train.py",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="\n\n".join(__doc__.split("\n\n")[1:]),
-    )
+    parser = script_parser("train.py", __doc__)
     run = parser.add_argument_group("what to train")
     run.add_argument("--env", help="environment id (default: ViewPlanning-v0)")
     run.add_argument("--algo", help="ppo or sac (default: ppo)")

@@ -8,6 +8,7 @@ parsed as YAML scalars/flow collections (``yaml.safe_load``), never evaluated as
 
 from __future__ import annotations
 
+import argparse
 import copy
 import difflib
 import inspect
@@ -46,6 +47,18 @@ _Loader.add_implicit_resolver(
     ),
     list("-+0123456789."),
 )
+
+
+def script_parser(prog: str, doc: str) -> argparse.ArgumentParser:
+    """The parser of a command-line script: the docstring's first paragraph describes it, the
+    rest (examples, notes) follows the flags in ``--help`` as written."""
+    paragraphs = doc.split("\n\n")
+    return argparse.ArgumentParser(
+        prog=prog,
+        description=paragraphs[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="\n\n".join(paragraphs[1:]),
+    )
 
 
 def safe_load(text: str):

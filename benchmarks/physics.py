@@ -36,12 +36,14 @@ class _Recorder:
     def __init__(self) -> None:
         self.segments: list[dict] = []
         self.recording = False
+        self._segment_open = False
         self._step = mujoco.mj_step
         mujoco.mj_step = self._recorded_step
 
     def _recorded_step(self, model, data, nstep: int = 1) -> None:
         if self.recording:
-            if not self.segments or self.segments[-1]["model"] is not model:
+            if not self._segment_open or self.segments[-1]["model"] is not model:
+                self._segment_open = True
                 state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
                 mujoco.mj_getState(model, data, state, STATE_SPEC)
                 self.segments.append({"model": model, "state": state, "controls": []})
@@ -49,7 +51,8 @@ class _Recorder:
         self._step(model, data, nstep=nstep)
 
     def new_episode(self) -> None:
-        self.segments.append({"model": None})  # a sentinel: the next step opens a segment
+        """The next step starts a new segment, from the state it finds."""
+        self._segment_open = False
 
     def close(self) -> None:
         mujoco.mj_step = self._step
@@ -72,7 +75,7 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
         _, _, terminated, truncated, _ = env.step(env.action_space.sample())
         done = terminated or truncated
     recorder.close()
-    segments = [s for s in recorder.segments if s["model"] is not None]
+    segments = recorder.segments
     data = {id(s["model"]): mujoco.MjData(s["model"]) for s in segments}
     controls = [np.concatenate(s["controls"]) for s in segments]
     substeps = sum(len(c) for c in controls)
@@ -98,9 +101,14 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
 
 
 def measure(config: Config, steps: int, repeats: int = 3) -> dict:
-    payload = json.dumps({"env_id": config.env_id, "kwargs": config.kwargs})
     return run_in_fresh_process(
-        "benchmarks.physics", "--one", payload, "--steps", str(steps), "--repeats", str(repeats)
+        "benchmarks.physics",
+        "--one",
+        config.to_json(),
+        "--steps",
+        str(steps),
+        "--repeats",
+        str(repeats),
     )
 
 
@@ -110,7 +118,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    print(json.dumps(limit(Config(**json.loads(args.one)), args.steps, args.repeats)))
+    print(json.dumps(limit(Config.from_json(args.one), args.steps, args.repeats)))
 
 
 if __name__ == "__main__":

@@ -68,10 +68,9 @@ def vector_throughput(config: Config, kind: str, workers: int, steps: int, repea
 
 
 def measure(config: Config, kind: str, workers: int, steps: int, repeats: int = 3) -> dict:
-    payload = json.dumps({"env_id": config.env_id, "kwargs": config.kwargs})
     return run_in_fresh_process(
         "benchmarks.scaling",
-        *("--one", payload, "--kind", kind, "--workers", str(workers)),
+        *("--one", config.to_json(), "--kind", kind, "--workers", str(workers)),
         *("--steps", str(steps), "--repeats", str(repeats)),
     )
 
@@ -84,7 +83,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    config = Config(**json.loads(args.one))
+    config = Config.from_json(args.one)
     print(json.dumps(vector_throughput(config, args.kind, args.workers, args.steps, args.repeats)))
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -26,6 +26,14 @@ class Config:
     env_id: str
     kwargs: dict = field(default_factory=dict)
     steps: int = 400  #: per timed run
+
+    def to_json(self) -> str:
+        """The ``--one`` argument of a measurement's fresh process."""
+        return json.dumps(asdict(self))
+
+    @classmethod
+    def from_json(cls, text: str) -> Config:
+        return cls(**json.loads(text))
 
     @property
     def label(self) -> str:
@@ -76,10 +84,9 @@ def make_env(config: Config):
 
 def measure(config: Config, repeats: int, scale: float = 1.0) -> dict:
     """Throughput of ``config`` in a fresh process (see module doc); ``scale`` shortens runs."""
-    steps = max(20, int(config.steps * scale))
-    payload = json.dumps({**asdict(config), "steps": steps})
+    shorter = replace(config, steps=max(20, int(config.steps * scale)))
     return run_in_fresh_process(
-        "benchmarks.throughput", "--one", payload, "--repeats", str(repeats)
+        "benchmarks.throughput", "--one", shorter.to_json(), "--repeats", str(repeats)
     )
 
 
@@ -88,7 +95,7 @@ def main() -> None:
     parser.add_argument("--one", required=True, help="a Config as JSON")
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
-    config = Config(**json.loads(args.one))
+    config = Config.from_json(args.one)
     env = make_env(config)
     warmup = 2 * env.spec.max_episode_steps if env.spec.max_episode_steps < 50 else 100
     print(json.dumps(random_action_throughput(env, config.steps, args.repeats, warmup)))

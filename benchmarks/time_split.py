@@ -108,8 +108,9 @@ SPLIT_CONFIGS = (
 
 
 def measure(config: Config, steps: int) -> dict:
-    payload = json.dumps({"env_id": config.env_id, "kwargs": config.kwargs})
-    return run_in_fresh_process("benchmarks.time_split", "--one", payload, "--steps", str(steps))
+    return run_in_fresh_process(
+        "benchmarks.time_split", "--one", config.to_json(), "--steps", str(steps)
+    )
 
 
 def main() -> None:
@@ -117,7 +118,7 @@ def main() -> None:
     parser.add_argument("--one", required=True, help="a Config as JSON")
     parser.add_argument("--steps", type=int, default=1000)
     args = parser.parse_args()
-    print(json.dumps(split(Config(**json.loads(args.one)), args.steps)))
+    print(json.dumps(split(Config.from_json(args.one), args.steps)))
 
 
 if __name__ == "__main__":

@@ -636,18 +636,16 @@ class _RayScene:
         self._with_arm = _StandIn(mesh, scale, with_arm=True)
         self._without_arm = _StandIn(mesh, scale, with_arm=False)
         model = self._with_arm.model
-        # Bodies and geoms before the object's (world, table, arm, camera) have the same ids
-        # in both models: ObjectStage appends its bodies after the scene's.
-        self._nbody, self._ngeom = model.nbody - 1, model.ngeom - 1
         for obj, count in (
-            (mujoco.mjtObj.mjOBJ_BODY, self._nbody),
-            (mujoco.mjtObj.mjOBJ_GEOM, self._ngeom),
+            (mujoco.mjtObj.mjOBJ_BODY, self._with_arm.nbody),
+            (mujoco.mjtObj.mjOBJ_GEOM, self._with_arm.ngeom),
         ):
             for i in range(count):
                 if mujoco.mj_id2name(live, obj, i) != mujoco.mj_id2name(model, obj, i):
                     raise RuntimeError("the ray-cast stand-in scene does not match the env's model")
         static = self._without_arm.model
-        self._arm_geoms = np.flatnonzero(model.geom_bodyid[: self._ngeom] > 0)  # not the world's
+        # The arm's geoms: the shared ones not on the world body.
+        self._arm_geoms = np.flatnonzero(model.geom_bodyid[: self._with_arm.ngeom] > 0)
         if static.ngeom != model.ngeom - self._arm_geoms.size:
             raise RuntimeError("the arm-free stand-in scene holds more than the world and object")
 
@@ -655,13 +653,19 @@ class _RayScene:
         self, live: mujoco.MjData, placed: PlacedObject, camera: DepthCamera
     ) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The stand-in to cast the live view into, with ``placed`` on the table."""
-        if camera.may_see_geoms(live, self._arm_geoms).any():
-            return self._with_arm.model, self._with_arm.sync(live, placed, self._nbody, self._ngeom)
-        return self._without_arm.model, self._without_arm.sync(live, placed, 0, 0)
+        stand_in = self._with_arm
+        if not camera.may_see_geoms(live, self._arm_geoms).any():
+            stand_in = self._without_arm
+        return stand_in.model, stand_in.sync(live, placed)
 
 
 class _StandIn:
-    """One stand-in model of :class:`_RayScene` and its kinematic state."""
+    """One stand-in model of :class:`_RayScene` and its kinematic state.
+
+    Its first :attr:`nbody` bodies and :attr:`ngeom` geoms (world, table, arm, camera; none
+    of the arm's without it) have the ids of the live model's and are posed from it:
+    ObjectStage appends the object after the scene's own bodies.
+    """
 
     def __init__(self, mesh, scale: float, *, with_arm: bool) -> None:
         self._stage = ObjectStage([mesh], (scale,))
@@ -676,11 +680,12 @@ class _StandIn:
         self.data = mujoco.MjData(self.model)
         self._stage.bind(self.model, self.data)
         self._placed: PlacedObject | None = None
+        self.nbody = self.model.nbody - 1 if with_arm else 0
+        self.ngeom = self.model.ngeom - 1 if with_arm else 0
 
-    def sync(self, live: mujoco.MjData, placed: PlacedObject, nbody: int, ngeom: int):
-        """The data with ``placed`` on the table and the first ``nbody`` bodies and ``ngeom``
-        geoms (the arm's) posed as in ``live``."""
-        d = self.data
+    def sync(self, live: mujoco.MjData, placed: PlacedObject) -> mujoco.MjData:
+        """The data with ``placed`` on the table and the arm (if any) posed as in ``live``."""
+        d, nbody, ngeom = self.data, self.nbody, self.ngeom
         if placed is not self._placed:  # a new episode: same pose as the live object
             self._stage.place(placed.name, placed.scale, placed.position, placed.yaw)
             self._placed = placed

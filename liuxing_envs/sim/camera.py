@@ -360,8 +360,10 @@ class _Backend(Protocol):
     def close(self) -> None: ...
 
 
-def _ray_cutoff(intrinsics: CameraIntrinsics, cos_widest_ray: float) -> float:
-    """Longest ray length worth casting: ``max_depth`` reached on the widest ray, with margin."""
+def _ray_cutoff(intrinsics: CameraIntrinsics) -> float:
+    """Longest ray length worth casting: ``max_depth`` reached on the widest (corner) pixel
+    ray, with margin."""
+    cos_widest_ray = float(-camera_rays(intrinsics, "unit")[..., 2].max())
     return _RAY_CUTOFF_MARGIN * intrinsics.max_depth / cos_widest_ray
 
 
@@ -476,7 +478,7 @@ class _RaycastBackend:
         self._nray = unit_rays.shape[0]
         self._geomid = np.empty(self._nray, dtype=np.int32)
         self._dist = np.empty(self._nray, dtype=np.float64)
-        self._cutoff = _ray_cutoff(intrinsics, float(self._cos_axis.min()))
+        self._cutoff = _ray_cutoff(intrinsics)
 
     def render(
         self, data: mujoco.MjData, scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None
@@ -578,8 +580,8 @@ class DepthCamera:
         self.geom_groups = groups
 
         model.cam_fovy[camera_id] = intrinsics.fovy_deg
-        # Cosine of the angle between the optical axis and the widest (corner) pixel ray.
-        self._cos_widest_ray = float(-camera_rays(intrinsics, "unit")[..., 2].max())
+        # Rays longer than this cannot return a depth in range (see _ray_cutoff).
+        self._ray_length = _ray_cutoff(intrinsics)
         # Unit outward normals, in the camera frame, of the planes through the optical centre
         # that bound every pixel ray: the four image edges, then the image plane (+z is back).
         tan_y = math.tan(math.radians(intrinsics.fovy_deg) / 2)
@@ -685,8 +687,7 @@ class DepthCamera:
         normals_in_geom = np.einsum("nji,pj->npi", data.geom_xmat[ids].reshape(-1, 3, 3), normals)
         nearest = offset @ normals.T + np.einsum("npi,ni->np", normals_in_geom, box[:, :3])
         nearest -= np.einsum("npi,ni->np", np.abs(normals_in_geom), box[:, 3:])
-        reach = _ray_cutoff(self.intrinsics, self._cos_widest_ray)
-        in_range = np.linalg.norm(offset, axis=1) - self.model.geom_rbound[ids] <= reach
+        in_range = np.linalg.norm(offset, axis=1) - self.model.geom_rbound[ids] <= self._ray_length
         return in_range & np.all(nearest <= 0.0, axis=1)
 
     def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
