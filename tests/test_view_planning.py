@@ -12,6 +12,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
 from liuxing_envs.envs.view_planning import DEFAULT_VIEW_BUDGET, ViewPlanningEnv
+from liuxing_envs.sim.viewpoints import look_at
 
 ENV_ID = "ViewPlanning-v0"
 #: Small and fast settings shared by most tests (3 objects, one scale).
@@ -301,5 +302,58 @@ def test_ray_cast_stand_in_scene_gives_the_live_models_image(motion):
         for _ in range(2):
             env.step(env.action_space.sample())
             np.testing.assert_array_equal(env._depth, env.camera.render(env.data))
-    assert env._ray_scenes is not None and len(env._ray_scenes) == len(FAST["objects"])
+    env.close()
+
+
+def test_collision_checks_in_the_stand_in_scene_match_the_live_model():
+    # The arm plans in a per-variant copy of the scene (faster kinematics); every path check
+    # and IK collision verdict must be the one the full live model gives.
+    env = ViewPlanningEnv(objects=["bowl", "table"], scales=(1.0, 1.4))
+    rng = np.random.default_rng(0)
+    hits = {"free": 0, "object": 0}
+    for seed in range(4):
+        env.reset(seed=seed)
+        start, object_geom = env.arm.qpos, f"object_{env.placed.name}"
+        for _ in range(20):
+            # Camera poses looking down from inside and above the object (whose collision
+            # shape is its convex hull): some paths end inside it, some are free.
+            eye = env.placed.position + rng.uniform([-0.03, -0.03, 0.03], [0.03, 0.03, 0.4])
+            rotation = look_at(eye, eye - [0.0, 0.0, 1.0], up=[1.0, 0.0, 0.0])
+            goal = env.arm.solve_ik(eye, rotation, roll_free=True, check_collisions=False).qpos
+            in_stand_in = env.arm.check_path(start, goal)
+            stand_in_contacts = env.arm.collisions(goal)
+            env.arm.use_collision_scene(None)
+            live = env.arm.check_path(start, goal)
+            assert in_stand_in.free == live.free
+            assert in_stand_in.fraction == live.fraction
+            np.testing.assert_array_equal(in_stand_in.last_free_qpos, live.last_free_qpos)
+            assert set(stand_in_contacts) == set(env.arm.collisions(goal))
+            hits["free"] += live.free
+            hits["object"] += any(object_geom in (c.geom1 + c.geom2) for c in live.contacts)
+            scenes = env._variant_scenes[(env.placed.name, env.placed.scale)]
+            env.arm.use_collision_scene(*scenes.collision_scene(env.placed))
+    assert min(hits.values()) >= 5, hits  # free paths and paths into the object were both tried
+    env.close()
+
+
+def test_the_arm_collides_with_the_placed_object_and_not_with_parked_ones():
+    # Regression: MuJoCo's broad phase filters on the compiled body_contype, so turning on
+    # only the geom's contype left the object ghostly and the arm could plan through it.
+    env = ViewPlanningEnv(objects=["box", "table"], scales=(1.0,))
+    options = {"object": "table", "position": (0.45, 0.0), "yaw": 0.0}
+    env.reset(seed=0, options=options)
+    eye = np.array([0.45, 0.0, 0.06])  # inside the table-shaped object's convex hull
+    rotation = look_at(eye, eye - [0.0, 0.0, 1.0], up=[1.0, 0.0, 0.0])
+    inside = env.arm.solve_ik(eye, rotation, roll_free=True, check_collisions=False)
+    assert inside.success
+    for scene in ("stand-in", "live"):
+        contacts = env.arm.collisions(inside.qpos)
+        assert any("object_table" in c.geom1 + c.geom2 for c in contacts), scene
+        assert not env.arm.check_path(env.arm.qpos, inside.qpos).free, scene
+        env.arm.use_collision_scene(None)
+    # The next episode parks the table: the same configuration is free in both scenes.
+    env.reset(seed=0, options={**options, "object": "box", "position": (0.6, 0.25)})
+    for scene in ("stand-in", "live"):
+        assert not env.arm.collisions(inside.qpos), scene
+        env.arm.use_collision_scene(None)
     env.close()

@@ -296,9 +296,11 @@ class ViewPlanningEnv(gym.Env):
         self._depth_backend = depth_backend
         self._depth_noise = depth_noise
         self._camera: DepthCamera | None = None
-        # Ray-cast backend only: one stand-in scene per variant (see _RayScene), made with
-        # the camera.
-        self._ray_scenes: dict[tuple[str, float], _RayScene] | None = None
+        # Stand-ins of the scene with one variant each (see _VariantScenes): ~3 ms apiece.
+        self._variant_scenes = {
+            key: _VariantScenes(self.model, self._stage.meshes[key[0]], key[1])
+            for key in self._ground_truth
+        }
         self._noise_enabled = depth_noise is not None and depth_noise.enabled
         lower = np.array(WORKSPACE_LOWER, dtype=float)
         lower[2] = table_crop_height
@@ -361,6 +363,8 @@ class ViewPlanningEnv(gym.Env):
             name, scale, [*np.asarray(position_xy, float)[:2], 0.0], yaw
         )
         mujoco.mj_forward(self.model, self.data)
+        scenes = self._variant_scenes[(name, scale)]
+        self.arm.use_collision_scene(*scenes.collision_scene(self.placed))
 
         self.coverage = self._tracker(name, scale)
         self.coverage.reset()
@@ -444,11 +448,6 @@ class ViewPlanningEnv(gym.Env):
                 backend=self._depth_backend,
                 noise=self._depth_noise,
             )
-            if self._camera.backend == "raycast":
-                self._ray_scenes = {
-                    key: _RayScene(self.model, self._stage.meshes[key[0]], key[1])
-                    for key in self._ground_truth
-                }
         return self._camera
 
     def close(self) -> None:
@@ -567,12 +566,11 @@ class ViewPlanningEnv(gym.Env):
     def _render_depth(self, rng: np.random.Generator | None) -> np.ndarray:
         """Depth at the live state; rays are cast in the placed variant's stand-in scene."""
         camera = self.camera
-        if self._ray_scenes is None:
+        if camera.backend != "raycast":
             return camera.render(self.data, rng=rng)
-        stand_in = self._ray_scenes[(self.placed.name, self.placed.scale)]
-        return camera.render(
-            self.data, rng=rng, scene=stand_in.scene(self.data, self.placed, camera)
-        )
+        scenes = self._variant_scenes[(self.placed.name, self.placed.scale)]
+        scene = scenes.ray_scene(self.data, self.placed, camera)
+        return camera.render(self.data, rng=rng, scene=scene)
 
     def _estimate_center(self, points: np.ndarray) -> np.ndarray:
         if len(points) == 0:  # nothing seen: aim at the middle of the placement region
@@ -616,20 +614,23 @@ class ViewPlanningEnv(gym.Env):
 
 
 # ---------------------------------------------------------------------- helpers
-class _RayScene:
-    """Stand-ins of the tabletop scene with one object variant only, for ray casting.
+class _VariantScenes:
+    """Stand-ins of the tabletop scene with one object variant only.
 
-    ``mj_multiRay`` visits every body and geom of the model it casts into for every ray,
-    parked variants included, and the env's model holds one body per (object, scale)
-    variant: 74 bodies for the train set. Two stand-ins hold the table and this variant
-    only, with the same geoms in the same world frame, so the depth image is identical:
-    one with the arm, synced from the live data before each image, and one without it,
-    for the views in which :meth:`DepthCamera.may_see_geoms` rules out every arm geom (most of
-    them: the arm is behind the camera). Casting into the stand-in with the arm costs about
-    30% less than into the env's model, into the one without it about 45% less.
+    The env's model holds one body per (object, scale) variant, parked when not shown: 74
+    bodies for the train set. Forward kinematics and ``mj_multiRay`` visit every body and
+    geom, parked or not, so the hot loops run in stand-ins that hold the table and this
+    variant only, with the same names, geoms and world frame, giving identical answers:
+
+    * the stand-in with the arm is the arm's collision scene (:meth:`Arm.use_collision_scene`),
+      where a path waypoint's kinematics cost a third of the env model's;
+    * ray casting uses the same stand-in, synced from the live data before each image, or, for
+      the views in which :meth:`DepthCamera.may_see_geoms` rules out every arm geom (most of
+      them: the arm is behind the camera), one without the arm. Casting into them costs about
+      30% and 45% less than into the env's model.
     """
 
-    #: Arena of a stand-in's data: ray casting and kinematics need only a few KiB of stack.
+    #: Arena of a stand-in's data: kinematics, a few contacts and ray casting need a few KiB.
     MEMORY = 1 << 18
 
     def __init__(self, live: mujoco.MjModel, mesh, scale: float) -> None:
@@ -642,14 +643,17 @@ class _RayScene:
         ):
             for i in range(count):
                 if mujoco.mj_id2name(live, obj, i) != mujoco.mj_id2name(model, obj, i):
-                    raise RuntimeError("the ray-cast stand-in scene does not match the env's model")
-        static = self._without_arm.model
+                    raise RuntimeError("the stand-in scene does not match the env's model")
         # The arm's geoms: the shared ones not on the world body.
         self._arm_geoms = np.flatnonzero(model.geom_bodyid[: self._with_arm.ngeom] > 0)
-        if static.ngeom != model.ngeom - self._arm_geoms.size:
-            raise RuntimeError("the arm-free stand-in scene holds more than the world and object")
+        if self._without_arm.model.ngeom != model.ngeom - self._arm_geoms.size:
+            raise RuntimeError("the arm-free stand-in holds more than the world and object")
 
-    def scene(
+    def collision_scene(self, placed: PlacedObject) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The stand-in with the arm, ``placed`` on the table, for the arm's collision checks."""
+        return self._with_arm.model, self._with_arm.place(placed)
+
+    def ray_scene(
         self, live: mujoco.MjData, placed: PlacedObject, camera: DepthCamera
     ) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The stand-in to cast the live view into, with ``placed`` on the table."""
@@ -660,7 +664,7 @@ class _RayScene:
 
 
 class _StandIn:
-    """One stand-in model of :class:`_RayScene` and its kinematic state.
+    """One stand-in model of :class:`_VariantScenes` and its kinematic state.
 
     Its first :attr:`nbody` bodies and :attr:`ngeom` geoms (world, table, arm, camera; none
     of the arm's without it) have the ids of the live model's and are posed from it:
@@ -670,7 +674,7 @@ class _StandIn:
     def __init__(self, mesh, scale: float, *, with_arm: bool) -> None:
         self._stage = ObjectStage([mesh], (scale,))
         spec = load_scene_spec()
-        spec.memory = _RayScene.MEMORY
+        spec.memory = _VariantScenes.MEMORY
         if not with_arm:
             spec.delete(spec.body(ARM_BASE_BODY))
             for key in list(spec.keys):  # the keyframes hold the arm's joints
@@ -683,16 +687,19 @@ class _StandIn:
         self.nbody = self.model.nbody - 1 if with_arm else 0
         self.ngeom = self.model.ngeom - 1 if with_arm else 0
 
-    def sync(self, live: mujoco.MjData, placed: PlacedObject) -> mujoco.MjData:
-        """The data with ``placed`` on the table and the arm (if any) posed as in ``live``."""
-        d, nbody, ngeom = self.data, self.nbody, self.ngeom
-        if placed is not self._placed:  # a new episode: same pose as the live object
+    def place(self, placed: PlacedObject) -> mujoco.MjData:
+        """The data with ``placed`` on the table, as the live object is."""
+        if placed is not self._placed:  # a new episode
             self._stage.place(placed.name, placed.scale, placed.position, placed.yaw)
             self._placed = placed
-            if not nbody:
-                mujoco.mj_kinematics(self.model, d)  # the object is all that moves
+            mujoco.mj_kinematics(self.model, self.data)
+        return self.data
+
+    def sync(self, live: mujoco.MjData, placed: PlacedObject) -> mujoco.MjData:
+        """The data with ``placed`` on the table and the arm (if any) posed as in ``live``."""
+        d, nbody, ngeom = self.place(placed), self.nbody, self.ngeom
         if not nbody:
-            return d
+            return d  # the object is all that moves
         # Objects are mocap bodies: the arm's joints are the whole qpos of both models.
         d.qpos[:] = live.qpos
         mujoco.mj_kinematics(self.model, d)  # places the object from its mocap pose

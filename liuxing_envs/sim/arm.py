@@ -3,7 +3,8 @@
 :class:`Arm` wraps the arm joints of a compiled tabletop scene (``assets/ur5e.xml``). It keeps
 a private scratch :class:`mujoco.MjData` for everything hypothetical (IK iterations, collision
 checks of configurations and paths), so asking questions never disturbs the simulation; only
-:meth:`Arm.move_to` changes the live ``data``.
+:meth:`Arm.move_to` changes the live ``data``. Collision checks may run in a smaller scene
+that holds the same arm and obstacles (:meth:`Arm.use_collision_scene`).
 
 Two ways to move, both collision-checked and reporting the same :class:`MotionResult`:
 
@@ -101,6 +102,19 @@ class IKResult:
 
 
 @dataclass(frozen=True)
+class _CollisionScene:
+    """Where :class:`Arm` checks collisions: a model holding the arm, a data to pose it in,
+    the arm's joint addresses there and which geoms are the arm's."""
+
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    qpos_at: slice | np.ndarray
+    is_arm_geom: np.ndarray
+    #: True for the live scene's own scratch, whose obstacles are copied from the live data.
+    mirrors_live: bool
+
+
+@dataclass(frozen=True)
 class PathCheck:
     """Outcome of :meth:`Arm.check_path`: whether the straight joint path is free and, if not,
     the last free waypoint before the first collision."""
@@ -174,15 +188,9 @@ class Arm:
         self.ik_seed = int(ik_seed)
         self._scratch = mujoco.MjData(model)
 
-        joint_ids = np.array(
-            [_require_id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in ARM_JOINT_NAMES]
-        )
+        joint_ids = _arm_joint_ids(model)
         self._qpos_idx = model.jnt_qposadr[joint_ids].copy()
-        # Writing a slice costs a fifth of a fancy-index write: it matters in the
-        # planning loop, which sets the joints dozens of times per path.
-        first = int(self._qpos_idx[0])
-        contiguous = np.array_equal(self._qpos_idx, np.arange(first, first + len(joint_ids)))
-        self._qpos_at = slice(first, first + len(joint_ids)) if contiguous else self._qpos_idx
+        self._qpos_at = _qpos_writer(self._qpos_idx)
         self._dof_idx = model.jnt_dofadr[joint_ids].copy()
         self._actuator_ids = np.array(
             [_require_id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in ARM_ACTUATOR_NAMES]
@@ -191,8 +199,11 @@ class Arm:
         self.upper = model.jnt_range[joint_ids, 1].copy()
 
         base_id = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, ARM_BASE_BODY)
-        arm_bodies = _subtree(model, base_id)
-        self._is_arm_geom = np.isin(model.geom_bodyid, arm_bodies)
+        self._is_arm_geom = _arm_geom_mask(model)
+        self._live_collisions = _CollisionScene(
+            model, self._scratch, self._qpos_at, self._is_arm_geom, mirrors_live=True
+        )
+        self._collisions = self._live_collisions
         self._site_ids: dict[str, int] = {}
         self._flange_in_site: dict[int, np.ndarray | None] = {}
         last_link = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, LAST_LINK_BODY)
@@ -220,7 +231,7 @@ class Arm:
 
     def within_limits(self, qpos: np.ndarray) -> bool:
         qpos = np.asarray(qpos)
-        return bool(np.all(qpos >= self.lower) and np.all(qpos <= self.upper))
+        return bool(((qpos >= self.lower) & (qpos <= self.upper)).all())
 
     def site_id(self, site: str) -> int:
         if site not in self._site_ids:
@@ -234,13 +245,40 @@ class Arm:
         return d.site_xpos[sid].copy(), d.site_xmat[sid].reshape(3, 3).copy()
 
     # ------------------------------------------------------------- collisions
+    def use_collision_scene(
+        self, model: mujoco.MjModel | None, data: mujoco.MjData | None = None
+    ) -> None:
+        """Check collisions (:meth:`collisions`, :meth:`check_path`, the IK's checks) in
+        another model, or in the live one again when ``model`` is None.
+
+        The other model must hold this arm (same joint and geom names) and the obstacles that
+        matter, posed in ``data`` by the caller, who keeps them where the live ones are; the
+        arm's joints there are set by each check. A model with fewer bodies than the live
+        one (say, without the live scene's hidden objects) makes every check cheaper:
+        forward kinematics visits every body.
+        """
+        if model is None:
+            self._collisions = self._live_collisions
+            return
+        if data is None or data.qpos.shape != (model.nq,):
+            raise ValueError("use_collision_scene needs the model's own MjData")
+        joints = _arm_joint_ids(model)
+        self._collisions = _CollisionScene(
+            model,
+            data,
+            _qpos_writer(model.jnt_qposadr[joints]),
+            _arm_geom_mask(model),
+            mirrors_live=False,
+        )
+
     def collisions(self, qpos: np.ndarray | None = None) -> tuple[Contact, ...]:
         """Contacts of the arm (with itself or the world) at ``qpos`` (default: now).
 
-        The rest of the world (objects, their poses) is taken from the live data.
+        The rest of the world (objects, their poses) is the live data's, or the collision
+        scene's (:meth:`use_collision_scene`).
         """
-        d = self._pose_scratch(self.qpos if qpos is None else qpos)
-        mujoco.mj_collision(self.model, d)
+        d = self._posed_for_collisions(self.qpos if qpos is None else qpos)
+        mujoco.mj_collision(self._collisions.model, d)
         return self._arm_contacts(d)
 
     def in_collision(self, qpos: np.ndarray) -> bool:
@@ -248,13 +286,14 @@ class Arm:
 
     def check_path(self, q_from: np.ndarray, q_to: np.ndarray) -> PathCheck:
         """Collision-check the straight joint-space path from ``q_from`` to ``q_to``."""
-        m, d = self.model, self._scratch
+        scene = self._collisions
+        m, d = scene.model, scene.data
         waypoints = self._waypoints(q_from, q_to)
         last_free = np.asarray(q_from, dtype=float).copy()
-        self._pose_scratch(last_free)  # the world (objects) is copied once per path
+        self._posed_for_collisions(last_free)  # the world (objects) is copied once per path
         # The hot loop of planning (dozens of waypoints per path): locals, and the contact
         # filter only runs when MuJoCo found any contact at all.
-        qpos, qpos_at = d.qpos, self._qpos_at
+        qpos, qpos_at = d.qpos, scene.qpos_at
         kinematics, collision = mujoco.mj_kinematics, mujoco.mj_collision
         for k, q in enumerate(waypoints):
             qpos[qpos_at] = q
@@ -406,11 +445,8 @@ class Arm:
         return self._flange_in_site[sid]
 
     def _solve_analytic(self, target_p, target_r, sid, roll_free, reference, check_collisions):
-        rolls = np.linspace(0, 2 * np.pi, IK_ROLL_SAMPLES, endpoint=False) if roll_free else [0.0]
-        site_poses = np.repeat(_homogeneous(target_p, target_r)[None], len(rolls), axis=0)
-        c, s = np.cos(rolls), np.sin(rolls)
-        roll = np.zeros((len(rolls), 3, 3))
-        roll[:, 0, 0], roll[:, 0, 1], roll[:, 1, 0], roll[:, 1, 1], roll[:, 2, 2] = c, -s, s, c, 1
+        roll = _ROLLS if roll_free else _NO_ROLL
+        site_poses = np.repeat(_homogeneous(target_p, target_r)[None], len(roll), axis=0)
         site_poses[:, :3, :3] = target_r @ roll  # turning about the site's own z keeps z
         flange_in_base = self._base_inverse @ site_poses @ self._flange_from_site(sid)
         solutions, valid = ur_ik(flange_in_base)
@@ -420,8 +456,8 @@ class Arm:
             shifted = candidates + 2 * np.pi * turns
             inside = (shifted >= self.lower) & (shifted <= self.upper)
             candidates = np.where(inside, shifted, candidates)
-            candidates = candidates[np.all(candidates >= self.lower, axis=1)]
-            candidates = candidates[np.all(candidates <= self.upper, axis=1)]
+            within = (candidates >= self.lower) & (candidates <= self.upper)
+            candidates = candidates[within.all(axis=1)]
         order = np.argsort(np.linalg.norm(candidates - reference, axis=1))
         tried, colliding = 0, None
         for index in order:
@@ -530,7 +566,9 @@ class Arm:
         to each segment) and stops at the first contact or missed waypoint.
         """
         self._check_mode(mode)
-        if not np.allclose(path.start, self.qpos, atol=1e-9):
+        now = self.qpos
+        # np.allclose(path.start, now, atol=1e-9) spelled out: it is hot and costs 10 us.
+        if not (np.abs(path.start - now) <= 1e-9 + 1e-5 * np.abs(now)).all():
             raise ValueError("the path does not start at the arm's current configuration")
         if mode == "kinematic":
             self.set_qpos(path.waypoints[-1])
@@ -594,7 +632,7 @@ class Arm:
 
     def _checked_qpos(self, qpos) -> np.ndarray:
         target = np.asarray(qpos, dtype=float)
-        if target.shape != (6,) or not np.all(np.isfinite(target)):
+        if target.shape != (6,) or not np.isfinite(target).all():
             raise ValueError(f"qpos must be 6 finite joint angles, got {qpos!r}")
         if not self.within_limits(target):
             raise ValueError(
@@ -626,21 +664,27 @@ class Arm:
         mujoco.mj_kinematics(self.model, d)
         return d
 
+    def _posed_for_collisions(self, qpos: np.ndarray) -> mujoco.MjData:
+        """The collision scene's data with the arm at ``qpos``, kinematics done."""
+        scene = self._collisions
+        if scene.mirrors_live:
+            return self._pose_scratch(qpos)
+        scene.data.qpos[scene.qpos_at] = qpos
+        mujoco.mj_kinematics(scene.model, scene.data)
+        return scene.data
+
     def _arm_contacts(self, d: mujoco.MjData) -> tuple[Contact, ...]:
+        """The arm's penetrating contacts in the collision scene's data ``d``."""
         if d.ncon == 0:
             return ()
+        model, is_arm_geom = self._collisions.model, self._collisions.is_arm_geom
         geoms = d.contact.geom[: d.ncon]
         dist = d.contact.dist[: d.ncon]
         hits = np.flatnonzero(
-            (self._is_arm_geom[geoms[:, 0]] | self._is_arm_geom[geoms[:, 1]])
-            & (dist < -PENETRATION_TOLERANCE)
+            (is_arm_geom[geoms[:, 0]] | is_arm_geom[geoms[:, 1]]) & (dist < -PENETRATION_TOLERANCE)
         )
         return tuple(
-            Contact(
-                self.model.geom(geoms[i, 0]).name,
-                self.model.geom(geoms[i, 1]).name,
-                -float(dist[i]),
-            )
+            Contact(model.geom(geoms[i, 0]).name, model.geom(geoms[i, 1]).name, -float(dist[i]))
             for i in hits
         )
 
@@ -650,6 +694,18 @@ class Arm:
         count = max(1, int(np.ceil(sweep / self.path_check_step)))
         fractions = np.arange(1, count + 1)[:, None] / count
         return q_from + fractions * (q_to - q_from)
+
+
+def _rolls_about_z(angles: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angles), np.sin(angles)
+    roll = np.zeros((len(angles), 3, 3))
+    roll[:, 0, 0], roll[:, 0, 1], roll[:, 1, 0], roll[:, 1, 1], roll[:, 2, 2] = c, -s, s, c, 1
+    return roll
+
+
+#: The rotations about the site's z axis the analytic IK tries when the roll is free.
+_ROLLS = _rolls_about_z(np.linspace(0, 2 * np.pi, IK_ROLL_SAMPLES, endpoint=False))
+_NO_ROLL = _rolls_about_z(np.zeros(1))
 
 
 def _homogeneous(position, rotation) -> np.ndarray:
@@ -687,14 +743,14 @@ def _rotation_error(current: np.ndarray, target: np.ndarray, roll_free: bool) ->
 
 def _as_vector3(value, name: str) -> np.ndarray:
     vec = np.asarray(value, dtype=float)
-    if vec.shape != (3,) or not np.all(np.isfinite(vec)):
+    if vec.shape != (3,) or not np.isfinite(vec).all():
         raise ValueError(f"{name} must be 3 finite numbers, got {value!r}")
     return vec
 
 
 def _as_rotation(value) -> np.ndarray:
     rot = np.asarray(value, dtype=float)
-    if rot.shape != (3, 3) or not np.all(np.isfinite(rot)):
+    if rot.shape != (3, 3) or not np.isfinite(rot).all():
         raise ValueError(f"rotation must be a finite 3x3 matrix, got shape {rot.shape}")
     # np.allclose(rot.T @ rot, I, atol=1e-6) and det(rot) > 0, spelled out: this runs on every
     # IK query, and the generic functions cost ~10x more on a 3x3 matrix.
@@ -724,6 +780,24 @@ def _require_id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str) -> int:
         kind = obj.name.removeprefix("mjOBJ_").lower()
         raise ValueError(f"the model has no {kind} named {name!r}; is it a liuxing_envs scene?")
     return idx
+
+
+def _arm_joint_ids(model: mujoco.MjModel) -> np.ndarray:
+    return np.array([_require_id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in ARM_JOINT_NAMES])
+
+
+def _qpos_writer(addresses: np.ndarray) -> slice | np.ndarray:
+    """What to index ``qpos`` with to write the arm's joints: a slice when they are
+    contiguous. Writing a slice costs a fifth of a fancy-index write, and the planning loop
+    sets the joints dozens of times per path."""
+    first = int(addresses[0])
+    contiguous = np.array_equal(addresses, np.arange(first, first + len(addresses)))
+    return slice(first, first + len(addresses)) if contiguous else addresses.copy()
+
+
+def _arm_geom_mask(model: mujoco.MjModel) -> np.ndarray:
+    base = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, ARM_BASE_BODY)
+    return np.isin(model.geom_bodyid, _subtree(model, base))
 
 
 def _subtree(model: mujoco.MjModel, root: int) -> np.ndarray:

@@ -684,11 +684,11 @@ class DepthCamera:
         normals = self._view_planes @ rotation.T  # (5, 3) outward normals in the world
         # Nearest point of each box to each plane (signed, > 0 outside): its centre's offset
         # minus the half-sizes weighted by how far each box axis leans along the normal.
-        normals_in_geom = np.einsum("nji,pj->npi", data.geom_xmat[ids].reshape(-1, 3, 3), normals)
-        nearest = offset @ normals.T + np.einsum("npi,ni->np", normals_in_geom, box[:, :3])
-        nearest -= np.einsum("npi,ni->np", np.abs(normals_in_geom), box[:, 3:])
-        in_range = np.linalg.norm(offset, axis=1) - self.model.geom_rbound[ids] <= self._ray_length
-        return in_range & np.all(nearest <= 0.0, axis=1)
+        normals_in_geom = normals @ data.geom_xmat[ids].reshape(-1, 3, 3)  # (geom, plane, xyz)
+        nearest = offset @ normals.T + (normals_in_geom @ box[:, :3, None])[..., 0]
+        nearest -= (np.abs(normals_in_geom) @ box[:, 3:, None])[..., 0]
+        in_range = np.sqrt(np.einsum("ni,ni->n", offset, offset)) - self.model.geom_rbound[ids]
+        return (in_range <= self._ray_length) & (nearest <= 0.0).all(axis=1)
 
     def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Camera position ``(3,)`` and rotation ``(3, 3)`` (columns = camera axes) in the world.

@@ -5,7 +5,9 @@ milliseconds per reset, so every object the environment may show is compiled int
 once, at each of a few discrete scales, as a mocap body. :meth:`ObjectStage.place` shows one
 variant at a pose on the table and parks all others: they are moved far below the floor,
 their geoms are moved to a geom group no camera renders, and their collisions are switched
-off, so they cost neither rendering, ray casting nor collision checks.
+off, so they cost neither rendering, ray casting nor collision checks. Collisions are switched
+per geom and per body: MuJoCo's broad phase skips a body whose compiled ``body_contype`` and
+``body_conaffinity`` are both 0 before it looks at any of its geoms.
 
 MuJoCo collides mesh geoms through their convex hulls; the rendered and ray-cast surface is
 the true (possibly concave) mesh. Arm-object collision checks are therefore conservative.
@@ -68,22 +70,27 @@ class ObjectStage:
             raise ValueError(f"object names must be unique, got {names}")
         if not scales or any(not (np.isfinite(s) and s > 0) for s in scales):
             raise ValueError(f"scales must be positive numbers, got {list(scales)}")
+        if len({float(s) for s in scales}) != len(scales):
+            raise ValueError(f"scales must be distinct, got {list(scales)}")
         self.meshes = {mesh.name: mesh for mesh in meshes}
         self.scales = tuple(float(s) for s in scales)
         self._model: mujoco.MjModel | None = None
         self._data: mujoco.MjData | None = None
-        self._variants: dict[tuple[str, float], tuple[int, np.ndarray]] = {}
+        self._variants: dict[tuple[str, float], tuple[int, int, np.ndarray]] = {}
         self._geom_groups: dict[tuple[str, float], np.ndarray] = {}
         self.placed: PlacedObject | None = None
 
     @staticmethod
-    def _body_name(name: str, index: int) -> str:
-        return f"object_{name}_s{index}"
+    def _body_name(name: str, scale: float) -> str:
+        # Named by the scale itself, not its index, so a stage holding only some of the
+        # scales (a stand-in scene) names the same variant the same way.
+        return f"object_{name}_x{scale!r}"
 
     def add_to_spec(self, spec: mujoco.MjSpec) -> None:
         for name, mesh in self.meshes.items():
-            for index, scale in enumerate(self.scales):
-                mesh_name = f"{self._body_name(name, index)}_mesh"
+            for scale in self.scales:
+                body_name = self._body_name(name, scale)
+                mesh_name = f"{body_name}_mesh"
                 spec.add_mesh(
                     name=mesh_name,
                     uservert=np.asarray(mesh.vertices, dtype=np.float64).ravel().tolist(),
@@ -91,33 +98,36 @@ class ObjectStage:
                     scale=[scale] * 3,
                 )
                 body = spec.worldbody.add_body(
-                    name=self._body_name(name, index), mocap=True, pos=list(PARKING_POSITION)
+                    name=body_name, mocap=True, pos=list(PARKING_POSITION)
                 )
                 body.add_geom(
-                    name=f"{self._body_name(name, index)}_geom",
+                    name=f"{body_name}_geom",
                     type=mujoco.mjtGeom.mjGEOM_MESH,
                     meshname=mesh_name,
                     rgba=list(OBJECT_RGBA),
                     group=PARKED_GEOM_GROUP,
-                    contype=0,
-                    conaffinity=0,
+                    # Compiled colliding, so MuJoCo builds the convex hull that makes
+                    # collision queries fast; bind() switches collisions off until place().
+                    contype=1,
+                    conaffinity=1,
                 )
 
     def bind(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """Resolve the compiled variants' ids once."""
         self._model, self._data = model, data
         for name in self.meshes:
-            for index, scale in enumerate(self.scales):
-                body_id = model.body(self._body_name(name, index)).id
+            for scale in self.scales:
+                body_id = model.body(self._body_name(name, scale)).id
                 geoms = np.flatnonzero(model.geom_bodyid == body_id)
-                self._variants[(name, scale)] = (int(model.body_mocapid[body_id]), geoms)
+                self._variants[(name, scale)] = (body_id, int(model.body_mocapid[body_id]), geoms)
+                _set_collisions(model, body_id, geoms, 0)
         self.placed = None
 
     @property
     def active_geom_ids(self) -> np.ndarray:
         if self.placed is None:
             return np.zeros(0, dtype=int)
-        return self._variants[(self.placed.name, self.placed.scale)][1]
+        return self._variants[(self.placed.name, self.placed.scale)][2]
 
     def place(self, name: str, scale: float, position, yaw: float) -> PlacedObject:
         """Show variant (name, scale) with its base centre at ``position`` (on the table),
@@ -131,20 +141,25 @@ class ObjectStage:
             )
         model, data = self._model, self._data
         if self.placed is not None:
-            old_mocap, old_geoms = self._variants[(self.placed.name, self.placed.scale)]
+            old_body, old_mocap, old_geoms = self._variants[(self.placed.name, self.placed.scale)]
             data.mocap_pos[old_mocap] = PARKING_POSITION
             model.geom_group[old_geoms] = PARKED_GEOM_GROUP
-            model.geom_contype[old_geoms] = 0
-            model.geom_conaffinity[old_geoms] = 0
-        mocap, geoms = self._variants[key]
+            _set_collisions(model, old_body, old_geoms, 0)
+        body, mocap, geoms = self._variants[key]
         position = np.asarray(position, dtype=float)
         data.mocap_pos[mocap] = position
         half = 0.5 * float(yaw)
         data.mocap_quat[mocap] = [np.cos(half), 0.0, 0.0, np.sin(half)]
         model.geom_group[geoms] = 0
-        model.geom_contype[geoms] = 1
-        model.geom_conaffinity[geoms] = 1
+        _set_collisions(model, body, geoms, 1)
         c, s = np.cos(yaw), np.sin(yaw)
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         self.placed = PlacedObject(name, float(scale), position.copy(), float(yaw), rotation)
         return self.placed
+
+
+def _set_collisions(model: mujoco.MjModel, body: int, geoms: np.ndarray, bits: int) -> None:
+    model.geom_contype[geoms] = bits
+    model.geom_conaffinity[geoms] = bits
+    model.body_contype[body] = bits
+    model.body_conaffinity[body] = bits
