@@ -9,7 +9,6 @@ trained with observation normalisation whose statistics are missing.
 from __future__ import annotations
 
 import json
-import pickle
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -251,15 +250,8 @@ def _algo_in_zip(model_path: Path) -> str:
 def _load(algo: str, model_path: Path, normalizer_path: Path | None) -> SB3Policy:
     try:
         return SB3Policy.load(ALGO_CLASSES[algo], model_path, normalizer_path)
-    except (pickle.UnpicklingError, EOFError) as error:
-        raise ContestantError(
-            f"{str(normalizer_path)!r} is not a readable VecNormalize file ({error})"
-        ) from error
-    except (zipfile.BadZipFile, ValueError, KeyError, RuntimeError, OSError) as error:
-        raise ContestantError(
-            f"{str(model_path)!r} is not a readable {algo.upper()} model zip "
-            f"({type(error).__name__}: {error})"
-        ) from error
+    except run_folder.RunFolderError as error:
+        raise ContestantError(str(error)) from error
 
 
 def _same_space(expected: spaces.Space, actual: spaces.Space) -> bool:

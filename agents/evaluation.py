@@ -9,13 +9,13 @@ headline, which split is held out and which scripted baseline a learner must bea
 from __future__ import annotations
 
 import numbers
-import pickle
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from agents import run_folder
 from agents.grasp_baselines import ScriptedGrasp
 from agents.statistics import bootstrap_ci, wilson_interval
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle
@@ -228,10 +228,11 @@ class SB3Policy:
 
     @classmethod
     def load(cls, algo_class, model_path: Path, normalizer_path: Path | None, device="cpu"):
-        model = algo_class.load(model_path, device=device)
+        """Raises :class:`agents.run_folder.RunFolderError` naming a file that is missing,
+        truncated, corrupt or foreign."""
+        model = run_folder.load_model(algo_class, model_path, device=device)
         normalizer = None
         if normalizer_path is not None and Path(normalizer_path).is_file():
-            with open(normalizer_path, "rb") as handle:
-                normalizer = pickle.load(handle)
+            normalizer = run_folder.load_normalizer(normalizer_path)
             normalizer.training = False
         return cls(model, normalizer)

@@ -18,10 +18,16 @@ from __future__ import annotations
 
 import csv
 import importlib.metadata
+import io
+import os
+import pickle
 import platform
 import re
 import subprocess
 import sys
+import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import yaml
@@ -38,7 +44,19 @@ TENSORBOARD = "tensorboard"
 LEARNING_CURVE = "learning_curve.png"
 RESULT = "result.json"
 
-_CHECKPOINT = re.compile(r"model_(\d+)_steps\.zip$")
+_CHECKPOINT = re.compile(r"model_(\d+)_steps\.zip")
+#: What a truncated, corrupt or foreign model, normaliser or replay-buffer file raises on load.
+UNREADABLE = (
+    zipfile.BadZipFile,
+    pickle.UnpicklingError,
+    EOFError,
+    ValueError,
+    KeyError,
+    AttributeError,
+    ImportError,
+    RuntimeError,
+    OSError,
+)
 EVALUATION_FIELDS = ("timesteps", "mean_return", "std_return", "mean_metric", "wall_seconds")
 VERSIONED_PACKAGES = (
     "liuxing_envs",
@@ -48,6 +66,14 @@ VERSIONED_PACKAGES = (
     "torch",
     "numpy",
 )
+
+
+#: What a run's config.yml must hold; write_config writes git_commit last, so a file cut
+#: short anywhere lacks it.
+REQUIRED_CONFIG_KEYS = (
+    "env_id", "algo", "seed", "n_timesteps", "normalize", "env_kwargs", "hyperparams",
+    "git_commit",
+)  # fmt: skip
 
 
 class RunFolderError(ValueError):
@@ -68,7 +94,7 @@ def checkpoint_steps(run_dir: Path) -> list[int]:
     folder = Path(run_dir) / CHECKPOINTS
     if not folder.is_dir():
         return []
-    found = (_CHECKPOINT.search(path.name) for path in folder.iterdir())
+    found = (_CHECKPOINT.fullmatch(path.name) for path in folder.iterdir())
     return sorted(int(match.group(1)) for match in found if match)
 
 
@@ -120,6 +146,85 @@ def git_commit(directory: Path | None = None) -> str | None:
     return f"{commit}-dirty" if dirty else commit
 
 
+@contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write to, renamed onto ``path`` (atomically) only
+    when the block finishes: a crash mid-write leaves the old file or none, never half of
+    one. The temporary name keeps the suffix (SB3 appends ``.zip`` to a model path without
+    it) and is not a checkpoint name, so nothing loads it."""
+    path = Path(path)
+    temporary = path.with_name(f"{path.name}.partial{path.suffix}")
+    try:
+        yield temporary
+        os.replace(temporary, path)
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
+def write_text_atomically(path: Path, text: str) -> None:
+    with atomic_path(path) as temporary:
+        temporary.write_text(text)
+
+
+def save_model(model, path: Path) -> None:
+    with atomic_path(path) as temporary:
+        model.save(temporary)
+
+
+def save_normalizer(normalizer, path: Path) -> None:
+    with atomic_path(path) as temporary:
+        normalizer.save(str(temporary))
+
+
+def save_replay_buffer(model, path: Path) -> None:
+    with atomic_path(path) as temporary:
+        model.save_replay_buffer(temporary)
+
+
+def load_model(algo_class, path: Path, **kwargs):
+    """``algo_class.load(path, **kwargs)``, failing with a RunFolderError that names the file
+    and the problem when it is missing, truncated, corrupt or not a model of that kind."""
+    path = Path(path)
+    if not path.is_file():
+        raise RunFolderError(f"model file {str(path)!r} does not exist")
+    try:
+        return algo_class.load(path, **kwargs)
+    except UNREADABLE as error:
+        raise RunFolderError(
+            f"{str(path)!r} is not a readable {algo_class.__name__} model zip (truncated, "
+            f"corrupt or foreign): {type(error).__name__}: {error}"
+        ) from error
+
+
+def load_normalizer(path: Path):
+    """A saved VecNormalize, or a RunFolderError naming the file and the problem."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    path = Path(path)
+    try:
+        normalizer = pickle.load(io.BytesIO(path.read_bytes()))
+    except UNREADABLE as error:
+        raise RunFolderError(
+            f"{str(path)!r} is not a readable VecNormalize file (missing, truncated, corrupt "
+            f"or foreign): {type(error).__name__}: {error}"
+        ) from error
+    if not isinstance(normalizer, VecNormalize):
+        raise RunFolderError(
+            f"{str(path)!r} holds a {type(normalizer).__name__}, not a VecNormalize"
+        )
+    return normalizer
+
+
+def load_replay_buffer(model, path: Path) -> None:
+    try:
+        model.load_replay_buffer(Path(path))
+    except UNREADABLE as error:
+        raise RunFolderError(
+            f"{str(path)!r} is not a readable replay buffer (truncated, corrupt or foreign): "
+            f"{type(error).__name__}: {error}"
+        ) from error
+
+
 def write_config(run_dir: Path, config: dict) -> None:
     document = {
         **config,
@@ -127,7 +232,7 @@ def write_config(run_dir: Path, config: dict) -> None:
         "versions": library_versions(),
         "git_commit": git_commit(),
     }
-    (Path(run_dir) / CONFIG).write_text(yaml.safe_dump(document, sort_keys=False))
+    write_text_atomically(Path(run_dir) / CONFIG, yaml.safe_dump(document, sort_keys=False))
 
 
 def read_config(run_dir: Path) -> dict:
@@ -139,11 +244,15 @@ def read_config(run_dir: Path) -> dict:
         raise RunFolderError(f"{str(run_dir)!r} is not a run folder: it has no {CONFIG}")
     try:
         config = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise RunFolderError(f"{str(path)!r} is not valid YAML: {error}") from error
-    missing = [key for key in ("env_id", "algo", "seed", "hyperparams") if key not in config]
+    if not isinstance(config, dict):
+        raise RunFolderError(f"{str(path)!r} is not a run configuration (a YAML mapping)")
+    missing = [key for key in REQUIRED_CONFIG_KEYS if key not in config]
     if missing:
-        raise RunFolderError(f"{str(path)!r} lacks {', '.join(missing)}")
+        raise RunFolderError(
+            f"{str(path)!r} lacks {', '.join(missing)}: truncated, or not written by train.py"
+        )
     return config
 
 
@@ -152,18 +261,31 @@ def read_evaluations(run_dir: Path) -> list[dict]:
     path = Path(run_dir) / EVALUATIONS
     if not path.is_file():
         return []
-    with open(path, newline="") as handle:
-        return [{key: float(value) for key, value in row.items()} for row in csv.DictReader(handle)]
+    try:
+        with open(path, newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        return [{key: float(row[key]) for key in EVALUATION_FIELDS} for row in rows]
+    except (KeyError, TypeError, ValueError, UnicodeDecodeError) as error:
+        raise RunFolderError(
+            f"{str(path)!r} is not an evaluation history with columns "
+            f"{', '.join(EVALUATION_FIELDS)}: {type(error).__name__}: {error}"
+        ) from error
 
 
 def append_evaluation(run_dir: Path, row: dict) -> None:
+    """Add a row to the history, rewriting the (small) file atomically."""
+    read_evaluations(run_dir)  # refuses a damaged history rather than extending it
     path = Path(run_dir) / EVALUATIONS
-    new = not path.is_file()
-    with open(path, "a", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=EVALUATION_FIELDS)
-        if new:
-            writer.writeheader()
-        writer.writerow(row)
+    rows = []
+    if path.is_file():
+        with open(path, newline="") as handle:
+            rows = list(csv.DictReader(handle))
+    rows.append(row)
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=EVALUATION_FIELDS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    write_text_atomically(Path(run_dir) / EVALUATIONS, buffer.getvalue())
 
 
 #: What a shipped policy keeps of its run: enough to load, evaluate and reproduce it.

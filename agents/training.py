@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import sys
 import time
 from abc import abstractmethod
 from collections.abc import Mapping
@@ -22,6 +23,7 @@ from gymnasium.envs.registration import load_env_creator
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
@@ -61,6 +63,8 @@ DEFAULT_RUNS_DIR = Path("runs")
 #: updates ran 7x slower with 2 threads competing with 4 envs on 2 cores (0.73 s vs 5.1 s).
 DEFAULT_TORCH_THREADS = 1
 KEEP_CHECKPOINTS = 3
+#: What the parent of a SubprocVecEnv sees when a worker process has died.
+WORKER_GONE = (EOFError, BrokenPipeError, ConnectionResetError)
 #: Periodic evaluation replays the same seeds each time (so its curve compares like with
 #: like), offset from the training seeds.
 PERIODIC_EVAL_SEED_OFFSET = 10_000
@@ -225,12 +229,14 @@ def save_checkpoint(model, run_dir: Path) -> int:
     steps = int(model.num_timesteps)
     paths = run_folder.checkpoint_paths(run_dir, steps)
     paths["model"].parent.mkdir(parents=True, exist_ok=True)
-    model.save(paths["model"])
+    # Every file is written atomically, the model last: a checkpoint exists (for --resume)
+    # only once its model zip does, and then its other files are complete.
     if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
-        model.save_replay_buffer(paths["replay_buffer"])
+        run_folder.save_replay_buffer(model, paths["replay_buffer"])
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
-        normalizer.save(str(paths["normalizer"]))
+        run_folder.save_normalizer(normalizer, paths["normalizer"])
+    run_folder.save_model(model, paths["model"])
     run_folder.prune_checkpoints(run_dir, KEEP_CHECKPOINTS)
     return steps
 
@@ -259,6 +265,27 @@ class _Periodic(BaseCallback):
     @abstractmethod
     def act(self) -> None:
         """What to do every ``every`` steps."""
+
+
+class RolloutBoundary(BaseCallback):
+    """The step count at which the model's weights were last consistent with its counter.
+
+    An on-policy algorithm (PPO) learns only from whole rollouts, and a half-collected one
+    is lost when training stops; a checkpoint taken then is labelled with the steps of the
+    last whole rollout, so a resumed run collects the same rollouts and ends on the same step
+    count as one never interrupted. Off-policy algorithms (SAC) keep every step in their
+    replay buffer: their boundary is the current step."""
+
+    def _on_training_start(self) -> None:
+        self.steps = self.model.num_timesteps
+
+    def _on_rollout_end(self) -> None:
+        self.steps = self.model.num_timesteps
+
+    def _on_step(self) -> bool:
+        if not isinstance(self.model, OnPolicyAlgorithm):
+            self.steps = self.model.num_timesteps
+        return True
 
 
 class PeriodicCheckpoint(_Periodic):
@@ -305,10 +332,10 @@ class PeriodicEvaluation(_Periodic):
         self.logger.record(f"eval/{self.task.metric}", row["mean_metric"])
         if row["mean_return"] > self.best:
             self.best = row["mean_return"]
-            self.model.save(self.run_dir / run_folder.BEST_MODEL)
             normalizer = self.model.get_vec_normalize_env()
             if normalizer is not None:
-                normalizer.save(str(self.run_dir / run_folder.BEST_NORMALIZER))
+                run_folder.save_normalizer(normalizer, self.run_dir / run_folder.BEST_NORMALIZER)
+            run_folder.save_model(self.model, self.run_dir / run_folder.BEST_MODEL)
         return row
 
 
@@ -373,17 +400,29 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
     paths = run_folder.checkpoint_paths(run_dir, steps)
     venv = build_vec_env(config, run_dir)
-    if config["normalize"]:
-        venv = VecNormalize.load(str(paths["normalizer"]), venv)
-    algo_class = ALGO_CLASSES[config["algo"]]
-    model = algo_class.load(
-        paths["model"],
-        env=venv,
-        device=config["device"],
-        tensorboard_log=_tensorboard_dir(config, run_dir),
-    )
-    if paths["replay_buffer"].is_file():
-        model.load_replay_buffer(paths["replay_buffer"])
+    try:
+        if config["normalize"]:
+            normalizer = run_folder.load_normalizer(paths["normalizer"])
+            normalizer.set_venv(venv)
+            venv = normalizer
+        model = run_folder.load_model(
+            ALGO_CLASSES[config["algo"]],
+            paths["model"],
+            env=venv,
+            device=config["device"],
+            tensorboard_log=_tensorboard_dir(config, run_dir),
+        )
+        if paths["replay_buffer"].is_file():
+            run_folder.load_replay_buffer(model, paths["replay_buffer"])
+        elif hasattr(model, "replay_buffer"):
+            print(
+                f"warning: {paths['replay_buffer']} is missing; {config['algo'].upper()} "
+                "resumes with an empty replay buffer",
+                file=sys.stderr,
+            )
+    except run_folder.RunFolderError:
+        venv.close()
+        raise
     # A new stream: the resumed run must not replay the episodes it has already seen.
     model.set_random_seed(config["seed"] + steps)
     return _learn(model, config, run_dir, progress_bar, resuming=True)
@@ -395,7 +434,8 @@ def _tensorboard_dir(config: dict, run_dir: Path) -> str | None:
 
 def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: bool) -> dict:
     torch.set_num_threads(config.get("torch_threads", DEFAULT_TORCH_THREADS))
-    callbacks = []
+    boundary = RolloutBoundary()
+    callbacks = [boundary]
     if config["save_freq"]:
         callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"]))
     if config["eval_freq"]:
@@ -410,22 +450,36 @@ def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: boo
             tb_log_name="run",
         )
     except KeyboardInterrupt:
+        model.num_timesteps = boundary.steps
         steps = save_checkpoint(model, run_dir)
         print(
             f"\ninterrupted at {steps} steps; checkpoint saved. "
             f"Continue with: python train.py --resume {run_dir}"
         )
         raise
+    except WORKER_GONE as error:
+        # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
+        model.num_timesteps = boundary.steps
+        steps = save_checkpoint(model, run_dir)
+        raise RuntimeError(
+            f"a {config['env_id']} worker process of the vectorised env died; its traceback "
+            "is printed above and ends with the env and the step that failed. A checkpoint "
+            f"was saved at {steps} steps; "
+            f"after a fix, continue with: python train.py --resume {run_dir}"
+        ) from error
     finally:
-        model.get_env().close()
+        try:
+            model.get_env().close()
+        except WORKER_GONE:
+            pass  # a dead worker cannot be told to close
         for callback in callbacks:
             if isinstance(callback, PeriodicEvaluation):
                 callback.env.close()
     seconds = time.perf_counter() - started
-    model.save(run_dir / run_folder.FINAL_MODEL)
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
-        normalizer.save(str(run_dir / run_folder.FINAL_NORMALIZER))
+        run_folder.save_normalizer(normalizer, run_dir / run_folder.FINAL_NORMALIZER)
+    run_folder.save_model(model, run_dir / run_folder.FINAL_MODEL)
     save_checkpoint(model, run_dir)  # so a larger --timesteps can continue a finished run
     plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
     result = {"timesteps": int(model.num_timesteps), "train_seconds": round(seconds, 1)}
@@ -436,7 +490,7 @@ def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: boo
         )
         result["comparison"] = comparison
         print(format_comparison(comparison))
-    (run_dir / run_folder.RESULT).write_text(json.dumps(result, indent=2))
+    run_folder.write_text_atomically(run_dir / run_folder.RESULT, json.dumps(result, indent=2))
     return result
 
 

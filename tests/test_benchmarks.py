@@ -67,3 +67,22 @@ def test_unknown_section_is_refused():
     result = run_script("-m", "benchmarks", "--sections", "throughput,speed", check=False)
     assert result.returncode == 2
     assert "unknown section(s) ['speed']" in result.stderr and "throughput" in result.stderr
+
+
+@pytest.mark.slow
+def test_short_soak_of_both_envs_passes_and_reports(tmp_path):
+    out = tmp_path / "SOAK.md"
+    result = run_script(
+        "-m", "benchmarks.soak", "--steps", "400", "--envs", "10", "--out", str(out), check=False
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    runs = json.loads(out.with_suffix(".json").read_text())
+    assert [(r["env_id"], "steps" in r) for r in runs] == [
+        ("ViewPlanning-v0", True),
+        ("ViewPlanning-v0", False),
+        ("InstrumentGrasp-v0", True),
+        ("InstrumentGrasp-v0", False),
+    ]
+    soaks = [r for r in runs if "steps" in r]
+    assert all(r["steps"] == 400 and r["episodes"] > 1 and not r["non_finite_steps"] for r in soaks)
+    assert out.read_text().count("| none |") == 4

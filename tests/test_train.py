@@ -217,12 +217,13 @@ def test_resuming_a_finished_run_needs_more_steps(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("interrupt", [signal.SIGINT, signal.SIGTERM])
-def test_an_interrupt_saves_a_checkpoint_that_resume_continues(interrupt, tmp_path):
-    run_dir = tmp_path / "run"
+def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, tmp_path):
+    # PPO collects 2 envs x 32 steps per rollout: an uninterrupted 1000-step run ends at 1024.
+    run_dir, total, rollout = tmp_path / "run", 1000, 64
     process = subprocess.Popen(
         [
             sys.executable, "train.py",
-            *quick_args("ViewPlanning-v0", "ppo", run_dir, 100_000),
+            *quick_args("ViewPlanning-v0", "ppo", run_dir, total),
             "--save-freq", "0", "--eval-freq", "0",
         ],
         cwd=REPO,
@@ -236,16 +237,21 @@ def test_an_interrupt_saves_a_checkpoint_that_resume_continues(interrupt, tmp_pa
         monitors = list((run_dir / run_folder.MONITOR).glob("*.csv"))
         if sum(len(p.read_text().splitlines()) for p in monitors) > 40:
             break
-        time.sleep(0.5)
+        time.sleep(0.2)
     process.send_signal(interrupt)
-    stdout, _ = process.communicate(timeout=120)
-    assert process.returncode == 130
+    stdout, stderr = process.communicate(timeout=120)
+    assert process.returncode == 130, stderr[-2000:]
     assert "checkpoint saved" in stdout
     steps = run_folder.latest_checkpoint(run_dir)
-    assert steps is not None and steps > 0
+    # Saved at the last whole rollout: what was lost is the half-collected one, nothing more.
+    assert steps is not None and 0 < steps < total and steps % rollout == 0
 
-    run_train("--resume", str(run_dir), "-n", str(steps + 64), "--final-episodes", "0")
-    assert run_folder.latest_checkpoint(run_dir) >= steps + 64
+    run_train("--resume", str(run_dir), "--final-episodes", "0", "--no-progress-bar")
+    from stable_baselines3 import PPO
+
+    final = PPO.load(run_dir / run_folder.FINAL_MODEL)
+    assert final.num_timesteps == -(-total // rollout) * rollout == 1024
+    assert run_folder.latest_checkpoint(run_dir) == 1024
 
 
 # --- policy parts ----------------------------------------------------------------------------

@@ -11,13 +11,19 @@ import numpy as np
 from gymnasium import spaces
 
 from liuxing_envs.envs.validation import (
+    as_action,
+    checked_reset_options,
+    option_angle,
+    option_in,
+    option_xy,
     require_choice,
     require_int,
     require_number,
     require_range,
+    step_context,
 )
 from liuxing_envs.sim.arm import Arm
-from liuxing_envs.sim.camera import CameraIntrinsics, DepthCamera
+from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
 from liuxing_envs.sim.gripper import (
     GRASP_NOSLIP_ITERATIONS,
     MAX_OPENING,
@@ -38,6 +44,7 @@ from liuxing_envs.sim.scene import (
     load_scene_spec,
     reset_to_home,
 )
+from liuxing_envs.sim.stability import diverged_since, divergence_count
 
 OBS_MODES = ("state", "depth", "rgbd")
 CONTROLLERS = ("ee_delta", "joint_delta")
@@ -59,6 +66,10 @@ DEFAULT_IMPACT_PENALTY = 0.05  # reward per newton above the impact limit
 DEFAULT_FAILURE_PENALTY = 5.0
 #: The most the reach, grasp, lift and hold terms pay in one step.
 MAX_STEP_REWARD = 5.0
+REWARD_TERMS = (
+    "reward_reach", "reward_grasp", "reward_lift", "reward_hold",
+    "reward_force", "reward_impact", "reward_failure", "reward_success",
+)  # fmt: skip
 DEFAULT_MAX_TRANSLATION = 0.02  # m per control step at |action| = 1
 DEFAULT_MAX_YAW = 0.2  # rad per control step
 DEFAULT_MAX_JOINT_DELTA = 0.05  # rad per control step
@@ -165,7 +176,12 @@ class InstrumentGraspEnv(gym.Env):
     never been above ``force_limit``. It ends the episode only with ``terminate_on_success``.
     ``info`` also carries ``peak_force`` (episode, N), ``step_peak_force``, ``grip_force``
     (now), ``lift_height`` (m), ``force_violations`` (control steps above the limit),
-    ``impact_violations``, ``hard_limit_exceeded``, ``grasped`` and ``instrument``.
+    ``impact_violations``, ``hard_limit_exceeded``, ``grasped``, ``instrument`` and
+    ``sim_unstable``.
+
+    **Simulator faults**: physics that diverges (NaN, inf or huge accelerations, which MuJoCo
+    answers by resetting its data) ends the step at once: reward 0 (every term 0), truncated,
+    ``info["sim_unstable"] = True``, a finite observation; the next ``reset()`` starts clean.
 
     **Episode**: a random instrument of ``instrument_set`` (or of ``instruments``; one
     compiled model each), level on the tray at a random position and yaw (redrawn until it
@@ -218,6 +234,7 @@ class InstrumentGraspEnv(gym.Env):
         require_choice("instrument_set", instrument_set, INSTRUMENT_SET_NAMES)
         require_choice("render_mode", render_mode, (None, "rgb_array"))
         require_choice("terminate_on_success", terminate_on_success, (False, True))
+        require_choice("depth_backend", depth_backend, BACKENDS)
         for name, value, low, high in (
             ("control_hz", control_hz, 1.0, 500.0),
             ("timestep", timestep, 1e-4, 0.01),
@@ -242,12 +259,19 @@ class InstrumentGraspEnv(gym.Env):
                 f"1 / control_hz must be a whole number of timesteps; got control_hz="
                 f"{control_hz}, timestep={timestep}"
             )
-        names = tuple(instruments) if instruments is not None else INSTRUMENT_SETS[instrument_set]
-        unknown = [n for n in names if n not in INSTRUMENT_SETS["all"]]
-        if not names or unknown:
-            raise ValueError(
-                f"instruments must be names from {INSTRUMENT_SETS['all']}, got {list(names)}"
+        names = INSTRUMENT_SETS[instrument_set]
+        if instruments is not None:
+            expected = (
+                f"instruments must be a non-empty list of names from {INSTRUMENT_SETS['all']}"
             )
+            if isinstance(instruments, str | bytes):
+                raise ValueError(f"{expected}, got the single {instruments!r} (wrap it in a list)")
+            try:
+                names = tuple(instruments)
+            except TypeError:
+                raise ValueError(f"{expected}, got {instruments!r}") from None
+            if not names or any(name not in INSTRUMENT_SETS["all"] for name in names):
+                raise ValueError(f"{expected}, got {instruments!r}")
         self.mass_range = (
             None if mass_range is None else require_range("mass_range", mass_range, *SCALE_LIMITS)
         )
@@ -288,26 +312,26 @@ class InstrumentGraspEnv(gym.Env):
         if obs_mode == "rgbd":
             obs["rgb"] = spaces.Box(0, 255, (3, resolution, resolution), dtype=np.uint8)
         self.observation_space = spaces.Dict(obs)
+        self._reset_seed: int | None = None
         self._episode_ready = False
         self._renderer: mujoco.Renderer | None = None
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        options = checked_reset_options(
+            options,
+            {
+                "instrument": option_in(self.instrument_names),
+                "position": option_xy,
+                "yaw": option_angle,
+            },
+        )
         super().reset(seed=seed)
-        options = dict(options or {})
-        unknown = set(options) - {"instrument", "position", "yaw"}
-        if unknown:
-            raise ValueError(
-                f"unknown reset option(s) {sorted(unknown)}; allowed: instrument, position, yaw"
-            )
+        self._reset_seed = seed
         rng = self.np_random
         name = options.get(
             "instrument", self.instrument_names[rng.integers(len(self.instrument_names))]
         )
-        if name not in self._worlds:
-            raise ValueError(
-                f"reset option instrument={name!r} is not one of {self.instrument_names}"
-            )
         world = self._worlds[name]
         for _ in range(PLACEMENT_TRIES):
             xy = np.asarray(options.get("position", rng.uniform(*PLACEMENT_REGION)), dtype=float)
@@ -336,19 +360,16 @@ class InstrumentGraspEnv(gym.Env):
         self._start_height = self.world.grasp_point()[2]
         self._episode_ready = True
         info = self._info(terms={}, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0)
-        return self._observation(), info
+        return self._observation(), {**info, "sim_unstable": False}
 
     def step(self, action):
+        with step_context(self, self._steps + 1, self._reset_seed):
+            return self._step(action)
+
+    def _step(self, action):
         if not self._episode_ready:
             raise RuntimeError("call reset() before step(), and again after an episode ends")
-        action = np.asarray(action, dtype=np.float64)
-        if action.shape != self.action_space.shape:
-            raise ValueError(
-                f"action must have shape {self.action_space.shape}, got {action.shape}"
-            )
-        if not np.all(np.isfinite(action)):
-            raise ValueError(f"action must be finite, got {action.tolist()}")
-        action = np.clip(action, -1.0, 1.0)
+        action = np.clip(as_action(action, self.action_space.shape), -1.0, 1.0)
         world = self.world
         self._apply_arm_action(action[:-1])
         world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
@@ -356,11 +377,14 @@ class InstrumentGraspEnv(gym.Env):
         model, data, gripper = world.model, world.data, world.gripper
         pad_peak, impact_peak = np.zeros(2), 0.0
         forces = gripper.fingertip_forces()
+        divergences = divergence_count(data)
         for start in range(0, self.substeps, FORCE_SAMPLE_SUBSTEPS):
             # Noslip iterations stop a held instrument creeping in the pads; they cost a third
             # of a physics step, so they run only while a pad touches something.
             model.opt.noslip_iterations = GRASP_NOSLIP_ITERATIONS if forces.max() > 0.0 else 0
             mujoco.mj_step(model, data, nstep=min(FORCE_SAMPLE_SUBSTEPS, self.substeps - start))
+            if diverged_since(data, divergences):
+                return self._end_unstable()
             forces = gripper.fingertip_forces()
             np.maximum(pad_peak, forces, out=pad_peak)
             impact_peak = max(impact_peak, world.impact_force())
@@ -409,7 +433,19 @@ class InstrumentGraspEnv(gym.Env):
             self._episode_ready = False
         info = self._info(terms, grasped=grasped, pad_peak=pad_peak, success=success, lift=lift)
         info["hard_limit_exceeded"] = bool(broke_limit)
+        info["sim_unstable"] = False
         return self._observation(), reward, terminated, truncated, info
+
+    def _end_unstable(self):
+        """The step's return when the physics diverged: MuJoCo has reset the data, so the
+        episode's state is gone. No reward; truncated; the next reset() starts clean."""
+        self._steps += 1
+        self._episode_ready = False
+        terms = dict.fromkeys(REWARD_TERMS, 0.0)
+        info = self._info(terms, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0)
+        info.update(hard_limit_exceeded=False, sim_unstable=True)
+        observation = {key: np.nan_to_num(value) for key, value in self._observation().items()}
+        return observation, 0.0, False, True, info
 
     def render(self):
         if self.render_mode != "rgb_array":

@@ -1,9 +1,11 @@
-"""Keyword-argument checks shared by the environments: each failure names the argument, the
-value it got and what is allowed."""
+"""Checks shared by the environments: keyword arguments (each failure names the argument,
+the value it got and what is allowed) and the context added to an error raised in ``step``."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -39,3 +41,101 @@ def require_range(name: str, value, low: float, high: float) -> tuple[float, flo
     if not (low <= first <= second <= high):
         raise ValueError(f"{name} must satisfy {low} <= min <= max <= {high}, got {value!r}")
     return first, second
+
+
+def require_numbers(name: str, value, low: float, high: float) -> tuple[float, ...]:
+    """A non-empty sequence of finite numbers in [low, high], as floats."""
+    message = f"{name} must be a non-empty list of numbers in [{low}, {high}], got {value!r}"
+    if isinstance(value, str | bytes):
+        raise ValueError(message)
+    try:
+        numbers = tuple(float(v) for v in value if not isinstance(v, str | bytes | bool))
+    except (TypeError, ValueError):
+        raise ValueError(message) from None
+    if not numbers or len(numbers) != len(value):
+        raise ValueError(message)
+    if not all(math.isfinite(v) and low <= v <= high for v in numbers):
+        raise ValueError(message)
+    return numbers
+
+
+def checked_reset_options(options, checks: Mapping[str, Callable]) -> dict:
+    """``reset(options=...)`` checked before the env changes anything: unknown keys and bad
+    values raise ValueError naming them. ``checks`` maps each allowed key to a function
+    ``(key, value) -> value`` that raises on a bad value."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise ValueError(f"reset options must be a dict, got {options!r}")
+    unknown = sorted(set(options) - set(checks), key=str)
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {unknown}; allowed: {', '.join(checks)}")
+    return {key: checks[key](key, value) for key, value in options.items()}
+
+
+def option_in(allowed) -> Callable:
+    def check(key, value):
+        if isinstance(value, np.ndarray) or value not in allowed:
+            raise ValueError(f"reset option {key}={value!r} is not one of {tuple(allowed)}")
+        return value
+
+    return check
+
+
+def option_xy(key, value) -> np.ndarray:
+    try:
+        xy = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        xy = np.full(1, np.nan)
+    if xy.shape != (2,) or not np.isfinite(xy).all():
+        raise ValueError(f"reset option {key} must be two finite numbers (x, y), got {value!r}")
+    return xy
+
+
+def option_angle(key, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+        raise ValueError(f"reset option {key} must be a finite angle (rad), got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"reset option {key} must be a finite angle (rad), got {value!r}")
+    return float(value)
+
+
+def as_action(action, shape: tuple[int, ...]) -> np.ndarray:
+    """A continuous action as float64, or ValueError naming what is wrong with it."""
+    try:
+        array = np.asarray(action, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"action must be {shape} numbers, got {action!r}") from None
+    if array.shape != shape:
+        raise ValueError(f"action must have shape {shape}, got {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"action must be finite, got {array.tolist()}")
+    return array
+
+
+def as_index(action, n: int) -> int:
+    """A discrete action as an int in [0, n), or ValueError. Integral floats pass (some
+    vectorised code hands them over); strings, booleans and arrays do not."""
+    message = f"discrete action must be an integer in [0, {n - 1}], got {action!r}"
+    if isinstance(action, str | bytes | bool | np.bool_) or np.ndim(action) != 0:
+        raise ValueError(message)
+    try:
+        value = float(action)
+    except (TypeError, ValueError):
+        raise ValueError(message) from None
+    if not (math.isfinite(value) and value.is_integer() and 0 <= value < n):
+        raise ValueError(message)
+    return int(value)
+
+
+@contextmanager
+def step_context(env, step: int, seed: int | None) -> Iterator[None]:
+    """Notes on any error raised inside: which env, which step of the episode, and the reset
+    seed that replays it. Python prints notes with the traceback, also from a vector env's
+    worker process, where the env would otherwise be anonymous."""
+    try:
+        yield
+    except Exception as error:
+        env_id = env.spec.id if env.spec is not None else type(env).__name__
+        error.add_note(f"in {env_id}, step {step} of the episode reset with seed={seed}")
+        raise

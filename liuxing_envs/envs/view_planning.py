@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,10 +13,18 @@ import numpy as np
 from gymnasium import spaces
 
 from liuxing_envs.envs.validation import (
+    as_action,
+    as_index,
+    checked_reset_options,
+    option_angle,
+    option_in,
+    option_xy,
     require_choice,
     require_int,
     require_number,
+    require_numbers,
     require_range,
+    step_context,
 )
 from liuxing_envs.perception.coverage import CoverageTracker
 from liuxing_envs.perception.fusion import VoxelMap
@@ -155,7 +164,11 @@ class ViewPlanningEnv(gym.Env):
     ``reward_motion``, ``reward_refusal``; they sum to the reward) and ``coverage``,
     ``coverage_gain``, ``views_used``, ``reachable``, ``refused``, ``path_length``,
     ``is_success`` (coverage ≥ ``success_coverage``), ``viewpoint`` (azimuth, elevation in
-    degrees, radius in m), ``object`` and ``scale``.
+    degrees, radius in m), ``object``, ``scale`` and ``sim_unstable``.
+
+    **Simulator faults.** With ``motion="dynamic"``, physics that diverges (NaN, inf or huge
+    accelerations, which MuJoCo answers by resetting its data) stops the motion; the episode
+    is truncated with ``info["sim_unstable"] = True`` and the next ``reset()`` starts clean.
 
     **Coverage** (the NBV metric of PC-NBV, SCONE, RL-NBV): ``coverage_samples`` points
     sampled uniformly on the object's surface, restricted to those some view of the upper
@@ -174,7 +187,9 @@ class ViewPlanningEnv(gym.Env):
     ``render_mode`` ("rgb_array": the scene from the overview camera with the fused points
     and the camera's frustum).
 
-    **Version history.** v0: initial release.
+    **Version history.** v0: initial release. Fixed within v0 (2026-11-21): the placed
+    object takes part in the arm's collision checks (before, paths could pass through it;
+    only refusals and detours change), and ``info["sim_unstable"]``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -242,8 +257,20 @@ class ViewPlanningEnv(gym.Env):
             ("discrete_radius", discrete_radius, 0.15, 0.8),
         ):
             require_number(name, value, low, high)
-        region = np.asarray(object_region, dtype=float)
-        if region.shape != (2, 2) or not np.all(region[0] <= region[1]):
+        require_choice("terminate_on_success", terminate_on_success, (False, True))
+        require_choice("privileged", privileged, (False, True))
+        scales = require_numbers("scales", scales, 0.05, 5.0)
+        discrete_azimuths_deg = require_numbers(
+            "discrete_azimuths_deg", discrete_azimuths_deg, -360.0, 360.0
+        )
+        discrete_elevations_deg = require_numbers(
+            "discrete_elevations_deg", discrete_elevations_deg, 5.0, 90.0
+        )
+        try:
+            region = np.asarray(object_region, dtype=float)
+        except (TypeError, ValueError):
+            region = np.full(1, np.nan)
+        if region.shape != (2, 2) or not (region[0] <= region[1]).all():
             raise ValueError(
                 f"object_region must be ((x_min, y_min), (x_max, y_max)) with min <= max, "
                 f"got {object_region!r}"
@@ -328,6 +355,7 @@ class ViewPlanningEnv(gym.Env):
         self.observation_space = spaces.Dict(obs_spaces)
 
         self._renderer: mujoco.Renderer | None = None
+        self._reset_seed: int | None = None
         self._episode_ready = False
         self.placed = None
         self.coverage: CoverageTracker | None = None
@@ -339,20 +367,20 @@ class ViewPlanningEnv(gym.Env):
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        options = checked_reset_options(
+            options,
+            {
+                "object": option_in(self.object_names),
+                "scale": option_in(self.scales),
+                "position": option_xy,
+                "yaw": option_angle,
+            },
+        )
         super().reset(seed=seed)
-        options = dict(options or {})
-        unknown = set(options) - {"object", "scale", "position", "yaw"}
-        if unknown:
-            raise ValueError(
-                f"unknown reset option(s) {sorted(unknown)}; allowed: object, scale, position, yaw"
-            )
+        self._reset_seed = seed
         rng = self.np_random
         name = options.get("object", self.object_names[rng.integers(len(self.object_names))])
-        if name not in self.object_names:
-            raise ValueError(f"reset option object={name!r} is not one of {self.object_names}")
         scale = float(options.get("scale", self.scales[rng.integers(len(self.scales))]))
-        if scale not in self.scales:
-            raise ValueError(f"reset option scale={scale} is not one of {self.scales}")
         position_xy = options.get(
             "position", rng.uniform(self.object_region[0], self.object_region[1])
         )
@@ -377,9 +405,14 @@ class ViewPlanningEnv(gym.Env):
         self.center = self._estimate_center(points)
         self.coverage.update(self.placed.to_object(points))
         self._episode_ready = True
-        return self._observation(), self._info(0.0, {}, reached=True, refused=False, path=0.0)
+        info = self._info(0.0, {}, reached=True, refused=False, path=0.0)
+        return self._observation(), {**info, "sim_unstable": False}
 
     def step(self, action):
+        with step_context(self, self.views_used + 1, self._reset_seed):
+            return self._step(action)
+
+    def _step(self, action):
         if not self._episode_ready:
             raise RuntimeError("call reset() before step(), and again after an episode ends")
         azimuth, elevation, radius = self._view_from_action(action)
@@ -387,11 +420,12 @@ class ViewPlanningEnv(gym.Env):
         rotation = look_at(eye, self.center)
         ik = self.arm.solve_ik(eye, rotation, roll_free=True, restarts=VIEW_IK_RESTARTS)
         plan = self.arm.plan_path(ik.qpos) if ik.success else None
-        gain, path_length, reached = 0.0, 0.0, False
+        gain, path_length, reached, unstable = 0.0, 0.0, False, False
         if plan is not None:
             motion = self.arm.follow(plan, self.motion)
             path_length = motion.path_length
             reached = motion.reached
+            unstable = motion.unstable
             if reached:
                 gain = self.coverage.update(self.placed.to_object(self._capture()))
         refused = not reached
@@ -412,8 +446,11 @@ class ViewPlanningEnv(gym.Env):
         reward = float(sum(terms.values()))
         info = self._info(gain, terms, reached=reached, refused=refused, path=path_length)
         info["viewpoint"] = (math.degrees(azimuth), math.degrees(elevation), radius)
+        info["sim_unstable"] = unstable
         terminated = self.terminate_on_success and info["is_success"]
-        truncated = self.views_used >= self.view_budget and not terminated
+        # A diverged simulation (dynamic motion only) was reset by MuJoCo: the episode's
+        # state is gone, so it ends here; reset() starts a clean one.
+        truncated = (self.views_used >= self.view_budget or unstable) and not terminated
         if terminated or truncated:
             self._episode_ready = False
         return self._observation(), reward, terminated, truncated, info
@@ -536,19 +573,8 @@ class ViewPlanningEnv(gym.Env):
 
     def _view_from_action(self, action) -> tuple[float, float, float]:
         if self.action_mode == "discrete":
-            if not self.action_space.contains(action):
-                if not (np.ndim(action) == 0 and float(action) == int(action)):
-                    raise ValueError(f"discrete action must be an integer, got {action!r}")
-                if not 0 <= int(action) < self.action_space.n:
-                    raise ValueError(
-                        f"discrete action {action} is outside [0, {self.action_space.n - 1}]"
-                    )
-            return self.candidate_views[int(action)]
-        action = np.asarray(action, dtype=np.float64)
-        if action.shape != (3,):
-            raise ValueError(f"continuous action must have shape (3,), got {action.shape}")
-        if not np.all(np.isfinite(action)):
-            raise ValueError(f"action must be finite, got {action.tolist()}")
+            return self.candidate_views[as_index(action, int(self.action_space.n))]
+        action = as_action(action, self.action_space.shape)
         unit = (np.clip(action, -1.0, 1.0) + 1.0) / 2.0
         ranges = np.array([self.azimuth_range, self.elevation_range, self.radius_range])
         values = ranges[:, 0] + unit * (ranges[:, 1] - ranges[:, 0])
@@ -716,16 +742,27 @@ class _StandIn:
 def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
     if objects is None:
         return [get_object(name) for name in OBJECT_SETS[object_set]]
-    if isinstance(objects, (str, Path)) or not len(objects):
-        raise ValueError(
-            f"objects must be a non-empty list of library names or mesh file paths, got {objects!r}"
-        )
+    expected = "objects must be a non-empty list of library names or mesh file paths"
+    if isinstance(objects, str | os.PathLike):
+        raise ValueError(f"{expected}, got the single {objects!r} (wrap it in a list)")
+    try:
+        items = list(objects)
+    except TypeError:
+        raise ValueError(f"{expected}, got {objects!r}") from None
+    if not items or not all(isinstance(item, str | os.PathLike) for item in items):
+        raise ValueError(f"{expected}, got {objects!r}")
     meshes = []
-    for item in objects:
+    for item in items:
         if str(item) in OBJECT_SETS["all"]:
             meshes.append(get_object(str(item)))
-        else:
+            continue
+        try:
             meshes.append(load_mesh_file(item, size=USER_MESH_SIZE))
+        except (OSError, ValueError) as error:
+            raise type(error)(
+                f"objects: {str(item)!r} is not a library object "
+                f"({', '.join(OBJECT_SETS['all'])}), and as a mesh file: {error}"
+            ) from error
     return meshes
 
 

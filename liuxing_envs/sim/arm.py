@@ -36,6 +36,7 @@ from liuxing_envs.sim.scene import (
     LAST_LINK_BODY,
     WRIST_CAMERA_SITE,
 )
+from liuxing_envs.sim.stability import diverged_since, divergence_count
 from liuxing_envs.sim.ur_ik import ur_ik
 
 MOTION_MODES = ("kinematic", "dynamic")
@@ -146,7 +147,9 @@ class MotionResult:
 
     ``path_length`` is the joint-space distance actually travelled (sum of the Euclidean norms
     of the joint increments, radians). ``sim_time`` is the simulated time the motion took
-    (0 for kinematic motion).
+    (0 for kinematic motion). ``unstable`` means the physics diverged during a dynamic
+    motion (see :mod:`liuxing_envs.sim.stability`): MuJoCo reset the data, so the motion
+    stopped there and the live state is no longer the episode's.
     """
 
     reached: bool
@@ -156,6 +159,7 @@ class MotionResult:
     contacts: tuple[Contact, ...]
     sim_time: float
     mode: str
+    unstable: bool = False
 
 
 class Arm:
@@ -279,7 +283,7 @@ class Arm:
         """
         d = self._posed_for_collisions(self.qpos if qpos is None else qpos)
         mujoco.mj_collision(self._collisions.model, d)
-        return self._arm_contacts(d)
+        return self._arm_contacts(d, self._collisions)
 
     def in_collision(self, qpos: np.ndarray) -> bool:
         return bool(self.collisions(qpos))
@@ -300,7 +304,7 @@ class Arm:
             kinematics(m, d)
             collision(m, d)
             if d.ncon:
-                contacts = self._arm_contacts(d)
+                contacts = self._arm_contacts(d, scene)
                 if contacts:
                     fraction = k / len(waypoints)
                     return PathCheck(False, last_free, fraction, contacts)
@@ -581,7 +585,14 @@ class Arm:
             if not result.reached:
                 break
         return MotionResult(
-            result.reached, result.qpos, travelled, result.collided, result.contacts, sim_time, mode
+            result.reached,
+            result.qpos,
+            travelled,
+            result.collided,
+            result.contacts,
+            sim_time,
+            mode,
+            result.unstable,
         )
 
     def _move_kinematic(self, target: np.ndarray) -> MotionResult:
@@ -609,15 +620,20 @@ class Arm:
         t = 0.0
         previous = start
         path_length = 0.0
+        divergences = divergence_count(d)
         while t < timeout:
             progress = min(1.0, t / duration) if duration > 0 else 1.0
             d.ctrl[self._actuator_ids] = start + _smoothstep(progress) * delta
             mujoco.mj_step(m, d, nstep=substeps)
             t += period
+            if diverged_since(d, divergences):
+                return MotionResult(
+                    False, self.qpos, path_length, False, (), t, "dynamic", unstable=True
+                )
             q = self.qpos
             path_length += float(np.linalg.norm(q - previous))
             previous = q
-            contacts = self._arm_contacts(d)
+            contacts = self._arm_contacts(d, self._live_collisions)
             if contacts:
                 d.ctrl[self._actuator_ids] = q
                 return MotionResult(False, q, path_length, True, contacts, t, "dynamic")
@@ -673,11 +689,12 @@ class Arm:
         mujoco.mj_kinematics(scene.model, scene.data)
         return scene.data
 
-    def _arm_contacts(self, d: mujoco.MjData) -> tuple[Contact, ...]:
-        """The arm's penetrating contacts in the collision scene's data ``d``."""
+    @staticmethod
+    def _arm_contacts(d: mujoco.MjData, scene: _CollisionScene) -> tuple[Contact, ...]:
+        """The arm's penetrating contacts in ``d``, a data of ``scene``'s model."""
         if d.ncon == 0:
             return ()
-        model, is_arm_geom = self._collisions.model, self._collisions.is_arm_geom
+        model, is_arm_geom = scene.model, scene.is_arm_geom
         geoms = d.contact.geom[: d.ncon]
         dist = d.contact.dist[: d.ncon]
         hits = np.flatnonzero(
