@@ -313,6 +313,7 @@ class InstrumentGraspEnv(gym.Env):
             obs["rgb"] = spaces.Box(0, 255, (3, resolution, resolution), dtype=np.uint8)
         self.observation_space = spaces.Dict(obs)
         self._reset_seed: int | None = None
+        self._steps = 0
         self._episode_ready = False
         self._renderer: mujoco.Renderer | None = None
 
