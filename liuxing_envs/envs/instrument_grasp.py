@@ -384,8 +384,6 @@ class InstrumentGraspEnv(gym.Env):
             # of a physics step, so they run only while a pad touches something.
             model.opt.noslip_iterations = GRASP_NOSLIP_ITERATIONS if forces.max() > 0.0 else 0
             mujoco.mj_step(model, data, nstep=min(FORCE_SAMPLE_SUBSTEPS, self.substeps - start))
-            if diverged_since(data, divergences):
-                return self._end_unstable()
             forces = gripper.fingertip_forces()
             np.maximum(pad_peak, forces, out=pad_peak)
             impact_peak = max(impact_peak, world.impact_force())
@@ -396,6 +394,10 @@ class InstrumentGraspEnv(gym.Env):
                 gripper.command(gripper.opening())
                 mujoco.mj_step(model, data, nstep=FORCE_SAMPLE_SUBSTEPS)
                 break
+        # Checked once per control step: after a divergence MuJoCo's reset state is finite,
+        # so the loop above runs on harmlessly, and its figures are discarded here.
+        if diverged_since(data, divergences):
+            return self._end_unstable()
         self._steps += 1
 
         grasped = world.grasped()

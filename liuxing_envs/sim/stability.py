@@ -10,6 +10,8 @@ environments read the warning counters around each control step and end the epis
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -20,14 +22,17 @@ DIVERGENCE_WARNINGS = (
 )
 
 
+_DIVERGENCE_INDICES = np.array([int(warning) for warning in DIVERGENCE_WARNINGS])
+
+
 def divergence_count(data: mujoco.MjData) -> int:
     """How many times MuJoCo has found ``data`` diverged (and reset it) so far."""
-    return sum(int(data.warning[warning].number) for warning in DIVERGENCE_WARNINGS)
+    return int(data.warning.number[_DIVERGENCE_INDICES].sum())
 
 
 def diverged_since(data: mujoco.MjData, count_before: int) -> bool:
     """True when MuJoCo reset ``data`` after ``count_before`` was read, or its state is not
-    finite now."""
+    finite now (a sum is finite only if every term is; it costs a microsecond a call)."""
     if divergence_count(data) > count_before:
         return True
-    return not (np.isfinite(data.qpos).all() and np.isfinite(data.qvel).all())
+    return not math.isfinite(data.qpos.sum() + data.qvel.sum())
