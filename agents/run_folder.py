@@ -161,24 +161,14 @@ def atomic_path(path: Path) -> Iterator[Path]:
         temporary.unlink(missing_ok=True)
 
 
+def save_atomically(save, path: Path) -> None:
+    """``save(path)`` (e.g. ``model.save``, ``VecNormalize.save``) through :func:`atomic_path`."""
+    with atomic_path(path) as temporary:
+        save(temporary)
+
+
 def write_text_atomically(path: Path, text: str) -> None:
-    with atomic_path(path) as temporary:
-        temporary.write_text(text)
-
-
-def save_model(model, path: Path) -> None:
-    with atomic_path(path) as temporary:
-        model.save(temporary)
-
-
-def save_normalizer(normalizer, path: Path) -> None:
-    with atomic_path(path) as temporary:
-        normalizer.save(str(temporary))
-
-
-def save_replay_buffer(model, path: Path) -> None:
-    with atomic_path(path) as temporary:
-        model.save_replay_buffer(temporary)
+    save_atomically(lambda temporary: temporary.write_text(text), path)
 
 
 def load_model(algo_class, path: Path, **kwargs):
@@ -258,29 +248,34 @@ def read_config(run_dir: Path) -> dict:
 
 def read_evaluations(run_dir: Path) -> list[dict]:
     """The periodic-evaluation history, oldest first."""
+    return [
+        {key: float(row[key]) for key in EVALUATION_FIELDS} for row in _evaluation_rows(run_dir)
+    ]
+
+
+def _evaluation_rows(run_dir: Path) -> list[dict]:
+    """The history's rows as written (strings), checked to be numbers in every column."""
     path = Path(run_dir) / EVALUATIONS
     if not path.is_file():
         return []
     try:
         with open(path, newline="") as handle:
             rows = list(csv.DictReader(handle))
-        return [{key: float(row[key]) for key in EVALUATION_FIELDS} for row in rows]
+        for row in rows:
+            for key in EVALUATION_FIELDS:
+                float(row[key])
     except (KeyError, TypeError, ValueError, UnicodeDecodeError) as error:
         raise RunFolderError(
             f"{str(path)!r} is not an evaluation history with columns "
             f"{', '.join(EVALUATION_FIELDS)}: {type(error).__name__}: {error}"
         ) from error
+    return rows
 
 
 def append_evaluation(run_dir: Path, row: dict) -> None:
-    """Add a row to the history, rewriting the (small) file atomically."""
-    read_evaluations(run_dir)  # refuses a damaged history rather than extending it
-    path = Path(run_dir) / EVALUATIONS
-    rows = []
-    if path.is_file():
-        with open(path, newline="") as handle:
-            rows = list(csv.DictReader(handle))
-    rows.append(row)
+    """Add a row to the history, rewriting the (small) file atomically; a damaged history
+    is refused rather than extended."""
+    rows = [*_evaluation_rows(run_dir), row]
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=EVALUATION_FIELDS, lineterminator="\n")
     writer.writeheader()

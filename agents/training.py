@@ -232,11 +232,11 @@ def save_checkpoint(model, run_dir: Path) -> int:
     # Every file is written atomically, the model last: a checkpoint exists (for --resume)
     # only once its model zip does, and then its other files are complete.
     if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
-        run_folder.save_replay_buffer(model, paths["replay_buffer"])
+        run_folder.save_atomically(model.save_replay_buffer, paths["replay_buffer"])
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
-        run_folder.save_normalizer(normalizer, paths["normalizer"])
-    run_folder.save_model(model, paths["model"])
+        run_folder.save_atomically(normalizer.save, paths["normalizer"])
+    run_folder.save_atomically(model.save, paths["model"])
     run_folder.prune_checkpoints(run_dir, KEEP_CHECKPOINTS)
     return steps
 
@@ -278,12 +278,13 @@ class RolloutBoundary(BaseCallback):
 
     def _on_training_start(self) -> None:
         self.steps = self.model.num_timesteps
+        self._every_step = not isinstance(self.model, OnPolicyAlgorithm)
 
     def _on_rollout_end(self) -> None:
         self.steps = self.model.num_timesteps
 
     def _on_step(self) -> bool:
-        if not isinstance(self.model, OnPolicyAlgorithm):
+        if self._every_step:
             self.steps = self.model.num_timesteps
         return True
 
@@ -334,8 +335,10 @@ class PeriodicEvaluation(_Periodic):
             self.best = row["mean_return"]
             normalizer = self.model.get_vec_normalize_env()
             if normalizer is not None:
-                run_folder.save_normalizer(normalizer, self.run_dir / run_folder.BEST_NORMALIZER)
-            run_folder.save_model(self.model, self.run_dir / run_folder.BEST_MODEL)
+                run_folder.save_atomically(
+                    normalizer.save, self.run_dir / run_folder.BEST_NORMALIZER
+                )
+            run_folder.save_atomically(self.model.save, self.run_dir / run_folder.BEST_MODEL)
         return row
 
 
@@ -478,8 +481,8 @@ def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: boo
     seconds = time.perf_counter() - started
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
-        run_folder.save_normalizer(normalizer, run_dir / run_folder.FINAL_NORMALIZER)
-    run_folder.save_model(model, run_dir / run_folder.FINAL_MODEL)
+        run_folder.save_atomically(normalizer.save, run_dir / run_folder.FINAL_NORMALIZER)
+    run_folder.save_atomically(model.save, run_dir / run_folder.FINAL_MODEL)
     save_checkpoint(model, run_dir)  # so a larger --timesteps can continue a finished run
     plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
     result = {"timesteps": int(model.num_timesteps), "train_seconds": round(seconds, 1)}

@@ -127,7 +127,7 @@ def create_and_close(env_id: str, count: int) -> dict:
         env.close()
         if k % max(1, count // 20) == 0:
             samples.append((k, resident_mib(), _open_files(), threading.active_count()))
-    first_tenth = samples[max(0, len(samples) // 10 - 1)]
+    first_tenth = samples[_warm_index(len(samples))]
     return {
         "env_id": env_id,
         "envs": count,
@@ -138,6 +138,11 @@ def create_and_close(env_id: str, count: int) -> dict:
     }
 
 
+def _warm_index(count: int) -> int:
+    """Index of the last sample of the warm-up (the first tenth of a run)."""
+    return max(0, count // 10 - 1)
+
+
 def _open_files() -> int:
     return len(os.listdir("/proc/self/fd"))
 
@@ -145,7 +150,7 @@ def _open_files() -> int:
 def _growth(samples: list[tuple[int, float]]) -> dict:
     """Resident memory after the first tenth of the run (warm-up) and its largest later
     value, as MiB and as a growth ratio."""
-    warm = samples[max(0, len(samples) // 10 - 1)][1]
+    warm = samples[_warm_index(len(samples))][1]
     peak_after = max(mib for _, mib in samples[len(samples) // 10 :])
     return {
         "rss_after_warmup_mib": round(warm, 1),

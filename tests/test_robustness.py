@@ -78,6 +78,14 @@ def grasp_env():
     env.close()
 
 
+@pytest.fixture(scope="module")
+def discrete_env():
+    env = ViewPlanningEnv(action_mode="discrete", **VIEW_FAST)
+    env.reset(seed=0)
+    yield env
+    env.close()
+
+
 def action_inputs(size: int):
     """Arrays of every shape, dtype and value (NaN, inf, huge), plus non-arrays."""
     floats = st.floats(allow_nan=True, allow_infinity=True, width=32)
@@ -138,8 +146,8 @@ def test_instrument_grasp_clips_or_refuses_any_action(grasp_env, action):
         st.sampled_from([None, "3", [3], np.array([1, 2])]),
     )
 )
-def test_discrete_view_planning_takes_indices_only(action):
-    env = _discrete_env()
+def test_discrete_view_planning_takes_indices_only(discrete_env, action):
+    env = discrete_env
     before = state_of(env)
     valid = (
         isinstance(action, int | float)
@@ -154,16 +162,6 @@ def test_discrete_view_planning_takes_indices_only(action):
     with pytest.raises((ValueError, TypeError), match="action"):
         env.step(action)
     assert_same_state(before, state_of(env))
-
-
-_DISCRETE = {}
-
-
-def _discrete_env():
-    if "env" not in _DISCRETE:
-        _DISCRETE["env"] = ViewPlanningEnv(action_mode="discrete", **VIEW_FAST)
-        _DISCRETE["env"].reset(seed=0)
-    return _DISCRETE["env"]
 
 
 @pytest.mark.parametrize("env_class", [ViewPlanningEnv, InstrumentGraspEnv])

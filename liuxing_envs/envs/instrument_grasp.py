@@ -361,7 +361,7 @@ class InstrumentGraspEnv(gym.Env):
         self._start_height = self.world.grasp_point()[2]
         self._episode_ready = True
         info = self._info(terms={}, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0)
-        return self._observation(), {**info, "sim_unstable": False}
+        return self._observation(), info
 
     def step(self, action):
         with step_context(self, self._steps + 1, self._reset_seed):
@@ -436,7 +436,6 @@ class InstrumentGraspEnv(gym.Env):
             self._episode_ready = False
         info = self._info(terms, grasped=grasped, pad_peak=pad_peak, success=success, lift=lift)
         info["hard_limit_exceeded"] = bool(broke_limit)
-        info["sim_unstable"] = False
         return self._observation(), reward, terminated, truncated, info
 
     def _end_unstable(self):
@@ -445,8 +444,10 @@ class InstrumentGraspEnv(gym.Env):
         self._steps += 1
         self._episode_ready = False
         terms = dict.fromkeys(REWARD_TERMS, 0.0)
-        info = self._info(terms, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0)
-        info.update(hard_limit_exceeded=False, sim_unstable=True)
+        info = self._info(
+            terms, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0, unstable=True
+        )
+        info["hard_limit_exceeded"] = False
         observation = {key: np.nan_to_num(value) for key, value in self._observation().items()}
         return observation, 0.0, False, True, info
 
@@ -568,7 +569,9 @@ class InstrumentGraspEnv(gym.Env):
             obs["rgb"] = world.rgb(self.intrinsics).transpose(2, 0, 1).copy()
         return obs
 
-    def _info(self, terms: dict, *, grasped: bool, pad_peak, success: bool, lift: float) -> dict:
+    def _info(
+        self, terms: dict, *, grasped: bool, pad_peak, success: bool, lift: float, unstable=False
+    ) -> dict:
         world = self.world
         return {
             **terms,
@@ -581,6 +584,7 @@ class InstrumentGraspEnv(gym.Env):
             "force_violations": self._force_violations,
             "impact_violations": self._impact_violations,
             "instrument": world.name,
+            "sim_unstable": unstable,
         }
 
 

@@ -46,14 +46,16 @@ def require_range(name: str, value, low: float, high: float) -> tuple[float, flo
 def require_numbers(name: str, value, low: float, high: float) -> tuple[float, ...]:
     """A non-empty sequence of finite numbers in [low, high], as floats."""
     message = f"{name} must be a non-empty list of numbers in [{low}, {high}], got {value!r}"
-    if isinstance(value, str | bytes):
-        raise ValueError(message)
     try:
-        numbers = tuple(float(v) for v in value if not isinstance(v, str | bytes | bool))
-    except (TypeError, ValueError):
+        items = list(value) if not isinstance(value, str | bytes) else []
+    except TypeError:
         raise ValueError(message) from None
-    if not numbers or len(numbers) != len(value):
+    if not items or not all(
+        isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool)
+        for v in items
+    ):
         raise ValueError(message)
+    numbers = tuple(float(v) for v in items)
     if not all(math.isfinite(v) and low <= v <= high for v in numbers):
         raise ValueError(message)
     return numbers

@@ -406,7 +406,7 @@ class ViewPlanningEnv(gym.Env):
         self.coverage.update(self.placed.to_object(points))
         self._episode_ready = True
         info = self._info(0.0, {}, reached=True, refused=False, path=0.0)
-        return self._observation(), {**info, "sim_unstable": False}
+        return self._observation(), info
 
     def step(self, action):
         with step_context(self, self.views_used + 1, self._reset_seed):
@@ -444,9 +444,10 @@ class ViewPlanningEnv(gym.Env):
             "reward_refusal": -self.refusal_penalty * float(refused),
         }
         reward = float(sum(terms.values()))
-        info = self._info(gain, terms, reached=reached, refused=refused, path=path_length)
+        info = self._info(
+            gain, terms, reached=reached, refused=refused, path=path_length, unstable=unstable
+        )
         info["viewpoint"] = (math.degrees(azimuth), math.degrees(elevation), radius)
-        info["sim_unstable"] = unstable
         terminated = self.terminate_on_success and info["is_success"]
         # A diverged simulation (dynamic motion only) was reset by MuJoCo: the episode's
         # state is gone, so it ends here; reset() starts a clean one.
@@ -623,7 +624,9 @@ class ViewPlanningEnv(gym.Env):
             obs["coverage"] = np.array([self.coverage.coverage], dtype=np.float32)
         return obs
 
-    def _info(self, gain: float, terms: dict, *, reached: bool, refused: bool, path: float) -> dict:
+    def _info(
+        self, gain: float, terms: dict, *, reached: bool, refused: bool, path: float, unstable=False
+    ) -> dict:
         coverage = self.coverage.coverage
         return {
             **terms,
@@ -636,6 +639,7 @@ class ViewPlanningEnv(gym.Env):
             "is_success": coverage >= self.success_coverage,
             "object": self.placed.name,
             "scale": self.placed.scale,
+            "sim_unstable": unstable,
         }
 
 

@@ -111,8 +111,6 @@ class _CollisionScene:
     data: mujoco.MjData
     qpos_at: slice | np.ndarray
     is_arm_geom: np.ndarray
-    #: True for the live scene's own scratch, whose obstacles are copied from the live data.
-    mirrors_live: bool
 
 
 @dataclass(frozen=True)
@@ -205,7 +203,7 @@ class Arm:
         base_id = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, ARM_BASE_BODY)
         self._is_arm_geom = _arm_geom_mask(model)
         self._live_collisions = _CollisionScene(
-            model, self._scratch, self._qpos_at, self._is_arm_geom, mirrors_live=True
+            model, self._scratch, self._qpos_at, self._is_arm_geom
         )
         self._collisions = self._live_collisions
         self._site_ids: dict[str, int] = {}
@@ -272,7 +270,6 @@ class Arm:
             data,
             _qpos_writer(model.jnt_qposadr[joints]),
             _arm_geom_mask(model),
-            mirrors_live=False,
         )
 
     def collisions(self, qpos: np.ndarray | None = None) -> tuple[Contact, ...]:
@@ -683,7 +680,7 @@ class Arm:
     def _posed_for_collisions(self, qpos: np.ndarray) -> mujoco.MjData:
         """The collision scene's data with the arm at ``qpos``, kinematics done."""
         scene = self._collisions
-        if scene.mirrors_live:
+        if scene is self._live_collisions:  # its obstacles are copied from the live data
             return self._pose_scratch(qpos)
         scene.data.qpos[scene.qpos_at] = qpos
         mujoco.mj_kinematics(scene.model, scene.data)
