@@ -28,6 +28,7 @@ HARNESS_KEYS = {
     "policy": "SB3 policy class name (MultiInputPolicy for the Dict observations)",
     "env_kwargs": "keyword arguments of gym.make for training and evaluation",
     "normalize": "wrap in VecNormalize (observations only; vector keys only)",
+    "demonstrations": "expert episodes put in SAC's replay buffer first (agents/demonstrations.py)",
 }
 
 

@@ -12,6 +12,9 @@ camera intrinsics and the arm's kinematic model: what a real robot knows from ca
   handle, descends (stopping early if a pad touches anything), closes in small steps until
   both pads press with ``grip_force``, lifts and holds. It reads no privileged state.
 - :class:`Squeeze`: the same, but it closes the gripper fully: the force term must bite.
+- :class:`PrivilegedGrasp`: the same state machine on ``obs_mode="state"``, reading the handle
+  from the privileged ``instrument`` observation instead of the images: the expert whose
+  episodes seed SAC's replay buffer (see ``agents/demonstrations.py``).
 - :class:`RandomGrasp`: uniform samples of the action space (seeded).
 """
 
@@ -178,7 +181,7 @@ class ScriptedGrasp:
 
     def __init__(self, env, grip_force: float = DEFAULT_GRIP_FORCE) -> None:
         env = env.unwrapped
-        if env.obs_mode != "rgbd" or env.controller != "ee_delta":
+        if any(getattr(env, key) != value for key, value in self.ENV_KWARGS.items()):
             raise ValueError(
                 f"{type(self).__name__} needs {self.ENV_KWARGS}, got "
                 f"obs_mode={env.obs_mode!r}, controller={env.controller!r}"
@@ -271,7 +274,8 @@ class ScriptedGrasp:
             if not self.squeeze:
                 self._regulate_grip(forces, opening, HOLD_FORCE_FRACTION * self.grip_force)
 
-        return self._action(tcp, yaw, target, target_yaw, speed), state
+        commanded_opening = proprio[18]
+        return self._action(tcp, yaw, target, target_yaw, speed, commanded_opening), state
 
     # -------------------------------------------------------------------------------------
     def _regulate_grip(self, forces: np.ndarray, opening: float, least_force: float) -> None:
@@ -299,11 +303,15 @@ class ScriptedGrasp:
         position, rotation = env.wrist_camera_pose(np.asarray(observation["proprio"][:6]))
         return detect_handle(rgb, depth, env.intrinsics, position, rotation)
 
-    def _action(self, tcp, yaw, target, target_yaw, speed) -> np.ndarray:
+    def _action(self, tcp, yaw, target, target_yaw, speed, commanded_opening) -> np.ndarray:
         env = self.env
         move = np.clip((target - tcp) / env.max_translation, -speed, speed)
         turn = np.clip(_wrap(target_yaw - yaw) / env.max_yaw, -1.0, 1.0) if env.max_yaw else 0.0
-        grip = 2.0 * self.opening_command / MAX_OPENING - 1.0
+        if env.gripper_control == "delta":
+            change = (self.opening_command - commanded_opening) / env.max_gripper_delta
+            grip = np.clip(change, -1.0, 1.0)
+        else:
+            grip = 2.0 * self.opening_command / MAX_OPENING - 1.0
         return np.array([*move, turn, grip], dtype=np.float32)
 
 
@@ -311,6 +319,23 @@ class Squeeze(ScriptedGrasp):
     """ScriptedGrasp that closes the gripper all the way: it lifts, but crushes the handle."""
 
     squeeze = True
+
+
+class PrivilegedGrasp(ScriptedGrasp):
+    """ScriptedGrasp that knows where the handle is: the grasp point and axis from the
+    privileged ``instrument`` observation, the surface under it from the workcell's tray."""
+
+    ENV_KWARGS = {"obs_mode": "state", "controller": "ee_delta"}
+
+    def _detect(self, observation) -> HandleDetection:
+        instrument = np.asarray(observation["instrument"], dtype=np.float64)
+        axis = np.array([instrument[3], instrument[4], 0.0])
+        return HandleDetection(
+            point=instrument[:3].copy(),
+            axis=axis / max(np.linalg.norm(axis), 1e-9),
+            floor_z=self.env.world.tray.floor_z,
+            pixels=0,
+        )
 
 
 class RandomGrasp:
@@ -337,5 +362,6 @@ def _nearest_equivalent_yaw(handle_yaw: float, yaw: float) -> float:
 GRASP_BASELINES = {
     "scripted-grasp": ScriptedGrasp,
     "squeeze": Squeeze,
+    "privileged-grasp": PrivilegedGrasp,
     "random": RandomGrasp,
 }

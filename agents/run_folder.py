@@ -12,6 +12,7 @@ Layout (file names are constants here, so train.py, evaluate.py and tests agree)
     <run>/tensorboard/        TensorBoard logs (with --tensorboard)
     <run>/learning_curve.png  evaluation return and task metric against steps
     <run>/result.json         final comparison against the scripted baseline
+    <run>/demonstrations.json expert episodes that seeded the replay buffer (when configured)
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ MONITOR = "monitor"
 TENSORBOARD = "tensorboard"
 LEARNING_CURVE = "learning_curve.png"
 RESULT = "result.json"
+DEMONSTRATIONS = "demonstrations.json"
 
 _CHECKPOINT = re.compile(r"model_(\d+)_steps\.zip")
 #: What a truncated, corrupt or foreign model, normaliser or replay-buffer file raises on load.

@@ -38,6 +38,7 @@ from agents.config import (
     require_known,
     split_hyperparams,
 )
+from agents.demonstrations import check_demonstrations, seed_replay_buffer
 from agents.evaluation import (
     SB3Policy,
     compare_with_baseline,
@@ -114,6 +115,7 @@ def resolve_config(
         "vec_env": vec_env,
         "policy": harness.get("policy", "MultiInputPolicy"),
         "normalize": bool(harness.get("normalize", False)),
+        "demonstrations": check_demonstrations(env_id, algo, harness.get("demonstrations")),
         "env_kwargs": merged_env_kwargs,
         "hyperparams": algo_kwargs,
         "eval_freq": _int_at_least("eval-freq", eval_freq, minimum=0),
@@ -377,6 +379,16 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         verbose=0,
         **algorithm_kwargs(config["hyperparams"]),
     )
+    if config.get("demonstrations"):
+        torch.set_num_threads(config.get("torch_threads", DEFAULT_TORCH_THREADS))
+        added = seed_replay_buffer(model, config)
+        run_folder.write_text_atomically(
+            run_dir / run_folder.DEMONSTRATIONS, json.dumps(added, indent=2)
+        )
+        print(
+            f"replay buffer seeded with {added['transitions']} transitions of "
+            f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
+        )
     return _learn(model, config, run_dir, progress_bar, resuming=False)
 
 

@@ -11,7 +11,7 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import liuxing_envs  # noqa: F401  (registers the ids)
-from agents.grasp_baselines import ScriptedGrasp, Squeeze, detect_handle
+from agents.grasp_baselines import PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
 from liuxing_envs.envs.instrument_grasp import DEFAULT_FORCE_LIMIT, InstrumentGraspEnv
 
 REWARD_TERMS = (
@@ -117,6 +117,17 @@ def test_scripted_grasp_lifts_gently_and_squeeze_breaks_the_limit():
     env.close()
 
 
+def test_privileged_grasp_lifts_gently_from_state_and_refuses_images():
+    env = gym.make("InstrumentGrasp-v0", instrument_set="held_out")
+    for seed in (0, 11):
+        info, infos = run_policy(env, PrivilegedGrasp(env), seed)
+        assert info["is_success"], info
+        assert info["peak_force"] <= DEFAULT_FORCE_LIMIT and not info["hard_limit_exceeded"]
+    env.close()
+    with pytest.raises(ValueError, match="obs_mode"):
+        PrivilegedGrasp(gym.make("InstrumentGrasp-v0", obs_mode="rgbd"))
+
+
 def test_success_needs_the_hold_time_and_terminate_on_success_pays_the_rest():
     env = gym.make("InstrumentGrasp-v0", obs_mode="rgbd", terminate_on_success=True)
     info, infos = run_policy(env, ScriptedGrasp(env), 0)
@@ -209,6 +220,8 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
         ({"resolution": 64.5}, "resolution"),
         ({"terminate_on_success": "yes"}, "terminate_on_success"),
         ({"reach_sharpness": 0.0}, "reach_sharpness"),
+        ({"gripper_control": "velocity"}, "gripper_control"),
+        ({"max_gripper_delta": 0.5}, "max_gripper_delta"),
     ],
 )
 def test_bad_kwargs_name_the_argument(kwargs, message):
@@ -238,6 +251,25 @@ def test_joint_delta_moves_each_joint_by_the_action():
         observation, *_ = env.step(np.zeros(7, dtype=np.float32))
     moved = observation["proprio"][:6] - start
     np.testing.assert_allclose(moved, 4 * 0.05 * action[:6], atol=0.003)
+
+
+def test_delta_gripper_control_moves_the_commanded_opening_by_the_action():
+    env = InstrumentGraspEnv(gripper_control="delta", max_gripper_delta=0.004)
+    observation, _ = env.reset(seed=0)
+    assert observation["proprio"][18] == pytest.approx(0.06)  # the ready opening
+    for _ in range(3):
+        observation, *_ = env.step(np.array([0.0, 0.0, 0.0, 0.0, -0.5], dtype=np.float32))
+    assert observation["proprio"][18] == pytest.approx(0.06 - 3 * 0.002, abs=1e-6)
+    for _ in range(5):  # zero holds the command, and the fingers reach it
+        observation, *_ = env.step(np.zeros(5, dtype=np.float32))
+    assert observation["proprio"][18] == pytest.approx(0.054, abs=1e-6)
+    assert observation["proprio"][17] == pytest.approx(0.054, abs=5e-4)
+    env.close()
+    # The privileged expert grasps as gently with either gripper control.
+    env = gym.make("InstrumentGrasp-v0", gripper_control="delta")
+    info, _ = run_policy(env, PrivilegedGrasp(env), 0)
+    assert info["is_success"] and info["peak_force"] <= DEFAULT_FORCE_LIMIT
+    env.close()
 
 
 def test_ee_delta_moves_the_tool_centre_and_holds_still_on_zero():

@@ -7,6 +7,7 @@ benchmarks in the README)."""
 from __future__ import annotations
 
 import json
+import pickle
 import signal
 import subprocess
 import sys
@@ -95,6 +96,17 @@ def test_a_python_expression_stays_a_string():
         (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
         (["--device", "tpu"], "not a torch device"),
         (["--timesteps", "many"], "invalid int value"),
+        (
+            [
+                "--env",
+                "InstrumentGrasp-v0",
+                "--algo",
+                "sac",
+                "--hyperparams",
+                "demonstrations={expert: x}",
+            ],
+            "unknown expert 'x'",
+        ),
     ],
 )
 def test_bad_flags_exit_with_a_message_naming_the_problem(argv, message, capsys):
@@ -154,6 +166,28 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
     action, _ = policy.predict(observation, deterministic=True)
     assert env.action_space.contains(action)
     env.close()
+
+
+@pytest.mark.slow
+def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_path):
+    run_dir = tmp_path / "run"
+    demonstrations = "demonstrations={expert: privileged-grasp, episodes: 1, pretrain_steps: 20}"
+    args = quick_args("InstrumentGrasp-v0", "sac", run_dir, 128, n_envs=1)
+    run_train(*args, demonstrations)
+    added = json.loads((run_dir / run_folder.DEMONSTRATIONS).read_text())
+    assert added == {
+        "expert": "privileged-grasp",
+        "episodes": 1,
+        "transitions": 200,  # the noise-free first episode runs to the time limit
+        "successes": 1,
+    }
+    config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
+    assert config["demonstrations"]["pretrain_steps"] == 20
+    newest = run_folder.checkpoint_paths(run_dir, run_folder.checkpoint_steps(run_dir)[-1])
+    with open(newest["replay_buffer"], "rb") as file:
+        buffer = pickle.load(file)
+    assert buffer.pos == 200 + 128
+    assert buffer.rewards[:200].max() > 4.0  # the expert's lift is in there
 
 
 @pytest.mark.slow

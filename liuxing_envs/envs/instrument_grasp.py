@@ -48,6 +48,7 @@ from liuxing_envs.sim.stability import diverged_since, divergence_count
 
 OBS_MODES = ("state", "depth", "rgbd")
 CONTROLLERS = ("ee_delta", "joint_delta")
+GRIPPER_CONTROLS = ("opening", "delta")
 INSTRUMENT_SET_NAMES = ("train", "held_out", "all")
 
 DEFAULT_CONTROL_HZ = 20.0
@@ -73,6 +74,10 @@ REWARD_TERMS = (
 DEFAULT_MAX_TRANSLATION = 0.02  # m per control step at |action| = 1
 DEFAULT_MAX_YAW = 0.2  # rad per control step
 DEFAULT_MAX_JOINT_DELTA = 0.05  # rad per control step
+#: With gripper_control="delta": the most the commanded opening moves per control step (m).
+#: A pad servo pushes about 2.5 N per mm its command runs ahead of the pad, so a gentle
+#: grasp needs command steps of a fraction of a millimetre: 0.1 of this one.
+DEFAULT_MAX_GRIPPER_DELTA = 0.004
 DEFAULT_RESOLUTION = 64
 #: Allowed factors of mass_range and friction_range.
 SCALE_LIMITS = (0.1, 10.0)
@@ -127,8 +132,10 @@ class InstrumentGraspEnv(gym.Env):
                                 ``max_translation`` m per step each, world frame)
     3    ``"ee_delta"``         yaw change about world z (up to ``max_yaw`` rad per step)
     0-5  ``"joint_delta"``      arm joint set-point changes (up to ``max_joint_delta`` rad)
-    -1   both                   gripper: the pad opening to servo to, 0 m at -1 (closed) to
-                                0.08 m at +1 (each finger servo is limited to 40 N)
+    -1   both                   gripper, ``gripper_control="opening"`` (default): the pad
+                                opening to servo to, 0 m at -1 (closed) to 0.08 m at +1 (each
+                                finger servo is limited to 40 N); ``"delta"``: the change of
+                                the commanded opening (up to ``max_gripper_delta`` m per step)
     ===  =====================  ===============================================================
 
     With ``ee_delta`` (default) the tool stays pointing down; the target is clipped to the
@@ -196,7 +203,8 @@ class InstrumentGraspEnv(gym.Env):
     ``depth_backend`` (``"gl"``, ``"raycast"`` or ``"auto"``) and ``render_mode``
     (``"rgb_array"``: the overview camera, pads shaded white to red with their force).
 
-    **Version history.** v0: initial release.
+    **Version history.** v0: initial release; ``gripper_control="delta"`` and
+    ``max_gripper_delta`` added later (the default action is unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -206,6 +214,7 @@ class InstrumentGraspEnv(gym.Env):
         *,
         obs_mode: str = "state",
         controller: str = "ee_delta",
+        gripper_control: str = "opening",
         instrument_set: str = "train",
         instruments: Sequence[str] | None = None,
         control_hz: float = DEFAULT_CONTROL_HZ,
@@ -223,6 +232,7 @@ class InstrumentGraspEnv(gym.Env):
         max_translation: float = DEFAULT_MAX_TRANSLATION,
         max_yaw: float = DEFAULT_MAX_YAW,
         max_joint_delta: float = DEFAULT_MAX_JOINT_DELTA,
+        max_gripper_delta: float = DEFAULT_MAX_GRIPPER_DELTA,
         mass_range: Sequence[float] | None = None,
         friction_range: Sequence[float] | None = None,
         resolution: int = DEFAULT_RESOLUTION,
@@ -231,6 +241,7 @@ class InstrumentGraspEnv(gym.Env):
     ) -> None:
         require_choice("obs_mode", obs_mode, OBS_MODES)
         require_choice("controller", controller, CONTROLLERS)
+        require_choice("gripper_control", gripper_control, GRIPPER_CONTROLS)
         require_choice("instrument_set", instrument_set, INSTRUMENT_SET_NAMES)
         require_choice("render_mode", render_mode, (None, "rgb_array"))
         require_choice("terminate_on_success", terminate_on_success, (False, True))
@@ -250,6 +261,7 @@ class InstrumentGraspEnv(gym.Env):
             ("max_translation", max_translation, 1e-4, 0.1),
             ("max_yaw", max_yaw, 0.0, 1.0),
             ("max_joint_delta", max_joint_delta, 1e-4, 0.5),
+            ("max_gripper_delta", max_gripper_delta, 1e-4, MAX_OPENING),
         ):
             require_number(name, value, low, high)
         require_int("resolution", resolution, 8, 512)
@@ -294,6 +306,7 @@ class InstrumentGraspEnv(gym.Env):
         self.terminate_on_success = bool(terminate_on_success)
         self.max_translation, self.max_yaw = max_translation, max_yaw
         self.max_joint_delta = max_joint_delta
+        self.gripper_control, self.max_gripper_delta = gripper_control, max_gripper_delta
         self.intrinsics = CameraIntrinsics(width=resolution, height=resolution)
         self._depth_backend = depth_backend
         self._worlds = {name: _World(name, timestep) for name in names}
@@ -373,7 +386,12 @@ class InstrumentGraspEnv(gym.Env):
         action = np.clip(as_action(action, self.action_space.shape), -1.0, 1.0)
         world = self.world
         self._apply_arm_action(action[:-1])
-        world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
+        if self.gripper_control == "delta":
+            world.gripper.command(
+                world.gripper.commanded_opening() + self.max_gripper_delta * action[-1]
+            )
+        else:
+            world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
 
         model, data, gripper = world.model, world.data, world.gripper
         pad_peak, impact_peak = np.zeros(2), 0.0
