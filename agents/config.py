@@ -16,6 +16,7 @@ import re
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
@@ -78,6 +79,12 @@ def closest(name: str, allowed: Iterable[str]) -> str:
     """``" (did you mean 'x'?)"`` for the closest allowed name, or ``""`` if none is close."""
     match = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.5)
     return f" (did you mean {match[0]!r}?)" if match else ""
+
+
+def int_at_least(name: str, value, minimum: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
 
 
 def require_known(kind: str, name: str, allowed: Sequence[str]) -> str:

@@ -30,12 +30,13 @@ Configured by the ``demonstrations`` harness key of a hyper-parameter entry::
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 import torch
 from stable_baselines3.common.logger import configure
 
-from agents.config import ConfigError, require_known
+from agents.config import ConfigError, int_at_least, require_known
 from agents.evaluation import make_env
 from agents.grasp_baselines import PrivilegedGrasp
 
@@ -45,6 +46,19 @@ PRETRAIN_BATCH_SIZE = 256
 #: Demonstration episodes use their own seeds, apart from training and evaluation.
 DEMONSTRATION_SEED_OFFSET = 20_000
 MAX_ACTION_NOISE = 2.0
+
+
+class Transition(NamedTuple):
+    """One expert step: what SB3's replay buffer stores, and the action the expert meant
+    before its noise was added (the behaviour-cloning label)."""
+
+    observation: dict
+    next_observation: dict
+    action: np.ndarray
+    reward: float
+    done: bool
+    info: dict
+    intended: np.ndarray
 
 
 def check_demonstrations(env_id: str, algo: str, spec) -> dict | None:
@@ -67,10 +81,8 @@ def check_demonstrations(env_id: str, algo: str, spec) -> dict | None:
     if "expert" not in spec:
         raise ConfigError(f"demonstrations need an expert, one of {', '.join(EXPERTS[env_id])}")
     require_known("expert", resolved["expert"], tuple(EXPERTS[env_id]))
-    for key, least in (("episodes", 1), ("pretrain_steps", 0)):
-        value = resolved[key]
-        if isinstance(value, bool) or not isinstance(value, int) or value < least:
-            raise ConfigError(f"demonstrations.{key} must be an integer >= {least}, got {value!r}")
+    int_at_least("demonstrations.episodes", resolved["episodes"])
+    int_at_least("demonstrations.pretrain_steps", resolved["pretrain_steps"], minimum=0)
     for key in ("action_noise", "gripper_noise"):
         noise = resolved[key]
         if (
@@ -99,16 +111,19 @@ def seed_replay_buffer(model, config: dict) -> dict:
     # order, and a remainder short of a whole row is left out.
     width = buffer.n_envs
     for start in range(0, len(transitions) - width + 1, width):
-        row = transitions[start : start + width]
+        row = Transition(*zip(*transitions[start : start + width], strict=True))
         buffer.add(
-            *(_stacked([t[index] for t in row]) for index in range(2)),
-            *(np.array([t[index] for t in row]) for index in range(2, 5)),
-            [t[5] for t in row],
+            _stacked(row.observation),
+            _stacked(row.next_observation),
+            np.array(row.action),
+            np.array(row.reward),
+            np.array(row.done),
+            list(row.info),
         )
     added = len(transitions) // width * width
     if normalizer is not None:
         for key, statistics in normalizer.obs_rms.items():
-            statistics.update(np.array([t[0][key] for t in transitions[:added]]))
+            statistics.update(np.array([t.observation[key] for t in transitions[:added]]))
     pretrain_steps = config["demonstrations"]["pretrain_steps"]
     if pretrain_steps:
         pretrain(model, transitions, pretrain_steps, seed=config["seed"])
@@ -120,10 +135,8 @@ def seed_replay_buffer(model, config: dict) -> dict:
     }
 
 
-def record_demonstrations(config: dict) -> tuple[list[tuple], int]:
-    """The expert's episodes in the training env as (observation, next observation, action
-    taken, reward, done, info, action the expert meant before the noise) tuples, and how
-    many of the episodes succeeded."""
+def record_demonstrations(config: dict) -> tuple[list[Transition], int]:
+    """The expert's episodes in the training env, step by step, and how many succeeded."""
     spec = config["demonstrations"]
     env = make_env(config["env_id"], config["env_kwargs"])
     expert = EXPERTS[config["env_id"]][spec["expert"]](env)
@@ -146,7 +159,7 @@ def record_demonstrations(config: dict) -> tuple[list[tuple], int]:
                 done = terminated or truncated
                 timeout = {"TimeLimit.truncated": truncated and not terminated}
                 transitions.append(
-                    (observation, following, action, reward, done, timeout, intended)
+                    Transition(observation, following, action, reward, done, timeout, intended)
                 )
                 observation = following
             successes += bool(info.get("is_success", False))
@@ -155,7 +168,7 @@ def record_demonstrations(config: dict) -> tuple[list[tuple], int]:
     return transitions, successes
 
 
-def pretrain(model, transitions: list[tuple], steps: int, seed: int) -> None:
+def pretrain(model, transitions: list[Transition], steps: int, seed: int) -> None:
     """Behaviour cloning of the expert's intended actions (also in the states its noise led
     to, so the actor learns its corrections), interleaved with SAC's own updates on the
     buffer so the critic learns the demonstrations' values before the actor follows it.
@@ -163,13 +176,13 @@ def pretrain(model, transitions: list[tuple], steps: int, seed: int) -> None:
     The loss is the squared error of the actor's deterministic action, the tanh of its mean.
     """
     normalizer = model.get_vec_normalize_env()
-    observations = _stacked([t[0] for t in transitions])
+    observations = _stacked([t.observation for t in transitions])
     if normalizer is not None:
         observations = normalizer.normalize_obs(observations)
     observations = {
         key: torch.as_tensor(value, device=model.device) for key, value in observations.items()
     }
-    intended = torch.as_tensor(np.array([t[6] for t in transitions]), device=model.device)
+    intended = torch.as_tensor(np.array([t.intended for t in transitions]), device=model.device)
     rng = np.random.default_rng(seed)
     # SAC.train logs through the logger learn() sets up; until then a silent one.
     model.set_logger(configure(folder=None, format_strings=[]))
@@ -184,5 +197,5 @@ def pretrain(model, transitions: list[tuple], steps: int, seed: int) -> None:
     model._custom_logger = False  # learn() then sets up its own (TensorBoard) logger
 
 
-def _stacked(observations: list[Mapping]) -> dict:
+def _stacked(observations) -> dict:
     return {key: np.stack([o[key] for o in observations]) for key in observations[0]}

@@ -35,6 +35,7 @@ from agents.config import (
     closest,
     deep_update,
     default_hyperparams,
+    int_at_least,
     require_known,
     split_hyperparams,
 )
@@ -105,11 +106,11 @@ def resolve_config(
     config = {
         "env_id": env_id,
         "algo": algo,
-        "seed": _int_at_least("seed", seed, minimum=0),
-        "n_timesteps": _int_at_least(
+        "seed": int_at_least("seed", seed, minimum=0),
+        "n_timesteps": int_at_least(
             "timesteps", n_timesteps if n_timesteps is not None else harness.get("n_timesteps")
         ),
-        "n_envs": _int_at_least(
+        "n_envs": int_at_least(
             "n-envs", n_envs if n_envs is not None else harness.get("n_envs", 1)
         ),
         "vec_env": vec_env,
@@ -118,22 +119,16 @@ def resolve_config(
         "demonstrations": check_demonstrations(env_id, algo, harness.get("demonstrations")),
         "env_kwargs": merged_env_kwargs,
         "hyperparams": algo_kwargs,
-        "eval_freq": _int_at_least("eval-freq", eval_freq, minimum=0),
-        "eval_episodes": _int_at_least("eval-episodes", eval_episodes),
-        "save_freq": _int_at_least("save-freq", save_freq, minimum=0),
-        "final_episodes": _int_at_least("final-episodes", final_episodes, minimum=0),
+        "eval_freq": int_at_least("eval-freq", eval_freq, minimum=0),
+        "eval_episodes": int_at_least("eval-episodes", eval_episodes),
+        "save_freq": int_at_least("save-freq", save_freq, minimum=0),
+        "final_episodes": int_at_least("final-episodes", final_episodes, minimum=0),
         "device": check_device(device),
         "tensorboard": bool(tensorboard),
-        "torch_threads": _int_at_least("torch-threads", torch_threads),
+        "torch_threads": int_at_least("torch-threads", torch_threads),
     }
     policy_kwargs(config["hyperparams"].get("policy_kwargs"))  # fails early on bad names
     return config
-
-
-def _int_at_least(name: str, value, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
 def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
@@ -362,6 +357,7 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         )
     run_dir.mkdir(parents=True, exist_ok=True)
     run_folder.write_config(run_dir, config)
+    torch.set_num_threads(config["torch_threads"])
     venv = build_vec_env(config, run_dir)
     if config["normalize"]:
         venv = VecNormalize(
@@ -380,7 +376,6 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         **algorithm_kwargs(config["hyperparams"]),
     )
     if config.get("demonstrations"):
-        torch.set_num_threads(config.get("torch_threads", DEFAULT_TORCH_THREADS))
         added = seed_replay_buffer(model, config)
         run_folder.write_text_atomically(
             run_dir / run_folder.DEMONSTRATIONS, json.dumps(added, indent=2)
@@ -402,7 +397,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     if steps is None:
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no checkpoint to resume from")
     if n_timesteps is not None:
-        config["n_timesteps"] = _int_at_least("timesteps", n_timesteps)
+        config["n_timesteps"] = int_at_least("timesteps", n_timesteps)
     for key, value in overrides.items():
         if value is not None:
             config[key] = value
@@ -414,6 +409,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
         )
     run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
     paths = run_folder.checkpoint_paths(run_dir, steps)
+    torch.set_num_threads(config.get("torch_threads", DEFAULT_TORCH_THREADS))
     venv = build_vec_env(config, run_dir)
     try:
         if config["normalize"]:
@@ -448,7 +444,6 @@ def _tensorboard_dir(config: dict, run_dir: Path) -> str | None:
 
 
 def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: bool) -> dict:
-    torch.set_num_threads(config.get("torch_threads", DEFAULT_TORCH_THREADS))
     boundary = RolloutBoundary()
     callbacks = [boundary]
     if config["save_freq"]:
