@@ -64,6 +64,7 @@ CLOSE_SLOW_BELOW = 0.032
 GRIP_FORCE_BAND = 1.5
 HOLD_FORCE_FRACTION = 0.7
 SETTLE_STEPS = 2
+FORCE_COMMAND_FIRM = 0.9
 POSITION_TOLERANCE = 0.004  # m
 YAW_TOLERANCE = 0.03  # rad
 DESCENT_SPEED = 0.5  # fraction of the env's max translation per step
@@ -264,7 +265,13 @@ class ScriptedGrasp:
                 self.opening_command = 0.0
             else:
                 self._regulate_grip(forces, opening, self.grip_force)
-            firm = forces.min() >= self.grip_force if not self.squeeze else forces.min() > 0
+            if self.squeeze:
+                firm = forces.min() > 0
+            elif self.env.gripper_control == "force":
+                # A force command is met exactly, give or take the solver's last digits.
+                firm = forces.min() >= FORCE_COMMAND_FIRM * self.grip_force
+            else:
+                firm = forces.min() >= self.grip_force
             self._settled = self._settled + 1 if firm else 0
             if self._settled >= SETTLE_STEPS:
                 self.lift_target = tcp + [0.0, 0.0, LIFT_HEIGHT]
@@ -310,9 +317,23 @@ class ScriptedGrasp:
         if env.gripper_control == "delta":
             change = (self.opening_command - commanded_opening) / env.max_gripper_delta
             grip = np.clip(change, -1.0, 1.0)
+        elif env.gripper_control == "force":
+            grip = self._grip_force_action()
         else:
             grip = 2.0 * self.opening_command / MAX_OPENING - 1.0
         return np.array([*move, turn, grip], dtype=np.float32)
+
+    def _grip_force_action(self) -> float:
+        """The gripper action under force commands: open with the most force until the
+        close, then grip with grip_force (HOLD_FORCE_FRACTION of it while lifting); the
+        squeeze closes with the most force."""
+        env = self.env
+        if self.phase not in (Phase.CLOSE, Phase.LIFT):
+            return -1.0
+        if self.squeeze:
+            return 1.0
+        force = self.grip_force * (HOLD_FORCE_FRACTION if self.phase == Phase.LIFT else 1.0)
+        return min(1.0, force / env.max_grip_force)
 
 
 class Squeeze(ScriptedGrasp):

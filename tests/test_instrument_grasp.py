@@ -11,8 +11,9 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import liuxing_envs  # noqa: F401  (registers the ids)
-from agents.grasp_baselines import PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
+from agents.grasp_baselines import Phase, PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
 from liuxing_envs.envs.instrument_grasp import DEFAULT_FORCE_LIMIT, InstrumentGraspEnv
+from liuxing_envs.sim.gripper import MAX_OPENING
 
 REWARD_TERMS = (
     "reward_reach",
@@ -222,6 +223,7 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
         ({"reach_sharpness": 0.0}, "reach_sharpness"),
         ({"gripper_control": "velocity"}, "gripper_control"),
         ({"max_gripper_delta": 0.5}, "max_gripper_delta"),
+        ({"max_grip_force": 50.0}, "max_grip_force"),
     ],
 )
 def test_bad_kwargs_name_the_argument(kwargs, message):
@@ -267,6 +269,40 @@ def test_delta_gripper_control_moves_the_commanded_opening_by_the_action():
     env.close()
     # The privileged expert grasps as gently with either gripper control.
     env = gym.make("InstrumentGrasp-v0", gripper_control="delta")
+    info, _ = run_policy(env, PrivilegedGrasp(env), 0)
+    assert info["is_success"] and info["peak_force"] <= DEFAULT_FORCE_LIMIT
+    env.close()
+
+
+def test_force_gripper_control_squeezes_with_the_commanded_force():
+    env = gym.make("InstrumentGrasp-v0", gripper_control="force", max_grip_force=20.0)
+    expert = PrivilegedGrasp(env)
+    observation, _ = env.reset(seed=0)
+    while expert.phase != Phase.CLOSE:
+        action, _ = expert.predict(observation)
+        observation, *_ = env.step(action)
+    # Jaws around the handle: each command is met by both pads. The damped fingers strike
+    # the handle with less than half the force again; later changes do not overshoot.
+    for force, overshoot in ((2.0, 1.5), (4.0, 1.05), (1.0, 1.05)):
+        peaks = []
+        for _ in range(15):
+            observation, _, _, _, info = env.step(np.array([0, 0, 0, 0, force / 20.0]))
+            peaks.append(info["step_peak_force"])
+        np.testing.assert_allclose(observation["forces"], force, rtol=0.02)
+        assert info["grasped"] and max(peaks) < force * overshoot
+    env.close()
+    # Closing on nothing stops at the closed position instead of pressing the pads together.
+    env = InstrumentGraspEnv(gripper_control="force")
+    env.reset(seed=0)
+    for _ in range(20):
+        observation, *_ = env.step(np.array([0, 0, 0.5, 0, 1.0], dtype=np.float32))
+    assert observation["proprio"][17] < 0.002 and observation["forces"].max() < 1.0
+    for _ in range(10):
+        observation, *_ = env.step(np.array([0, 0, 0, 0, -1.0], dtype=np.float32))
+    assert observation["proprio"][17] == pytest.approx(MAX_OPENING, abs=1e-3)
+    env.close()
+    # The privileged expert grasps gently with force commands too.
+    env = gym.make("InstrumentGrasp-v0", gripper_control="force")
     info, _ = run_policy(env, PrivilegedGrasp(env), 0)
     assert info["is_success"] and info["peak_force"] <= DEFAULT_FORCE_LIMIT
     env.close()

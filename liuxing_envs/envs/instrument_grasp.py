@@ -27,6 +27,7 @@ from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
 from liuxing_envs.sim.gripper import (
     GRASP_NOSLIP_ITERATIONS,
     MAX_OPENING,
+    SERVO_FORCE_LIMIT,
     TCP_SITE,
     Gripper,
     attach_gripper,
@@ -48,7 +49,7 @@ from liuxing_envs.sim.stability import diverged_since, divergence_count
 
 OBS_MODES = ("state", "depth", "rgbd")
 CONTROLLERS = ("ee_delta", "joint_delta")
-GRIPPER_CONTROLS = ("opening", "delta")
+GRIPPER_CONTROLS = ("opening", "delta", "force")
 INSTRUMENT_SET_NAMES = ("train", "held_out", "all")
 
 DEFAULT_CONTROL_HZ = 20.0
@@ -78,6 +79,9 @@ DEFAULT_MAX_JOINT_DELTA = 0.05  # rad per control step
 #: A pad servo pushes about 2.5 N per mm its command runs ahead of the pad, so a gentle
 #: grasp needs command steps of a fraction of a millimetre: 0.1 of this one.
 DEFAULT_MAX_GRIPPER_DELTA = 0.004
+#: With gripper_control="force": the grip force (N per finger) at |action| = 1. Above the
+#: default hard limit (15 N), so a force-commanded policy can still squeeze too hard.
+DEFAULT_MAX_GRIP_FORCE = 20.0
 DEFAULT_RESOLUTION = 64
 #: Allowed factors of mass_range and friction_range.
 SCALE_LIMITS = (0.1, 10.0)
@@ -135,7 +139,11 @@ class InstrumentGraspEnv(gym.Env):
     -1   both                   gripper, ``gripper_control="opening"`` (default): the pad
                                 opening to servo to, 0 m at -1 (closed) to 0.08 m at +1 (each
                                 finger servo is limited to 40 N); ``"delta"``: the change of
-                                the commanded opening (up to ``max_gripper_delta`` m per step)
+                                the commanded opening (up to ``max_gripper_delta`` m per step);
+                                ``"force"``: the grip force, as an industrial gripper's force
+                                setting: each finger servos closed (action > 0) or open
+                                (< 0) with at most |action| x ``max_grip_force`` N, its
+                                speed capped by damping (6 cm/s at 2.5 N)
     ===  =====================  ===============================================================
 
     With ``ee_delta`` (default) the tool stays pointing down; the target is clipped to the
@@ -204,7 +212,8 @@ class InstrumentGraspEnv(gym.Env):
     (``"rgb_array"``: the overview camera, pads shaded white to red with their force).
 
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
-    ``max_gripper_delta`` added later (the default action is unchanged).
+    ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, added
+    later (the default action is unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -233,6 +242,7 @@ class InstrumentGraspEnv(gym.Env):
         max_yaw: float = DEFAULT_MAX_YAW,
         max_joint_delta: float = DEFAULT_MAX_JOINT_DELTA,
         max_gripper_delta: float = DEFAULT_MAX_GRIPPER_DELTA,
+        max_grip_force: float = DEFAULT_MAX_GRIP_FORCE,
         mass_range: Sequence[float] | None = None,
         friction_range: Sequence[float] | None = None,
         resolution: int = DEFAULT_RESOLUTION,
@@ -262,6 +272,7 @@ class InstrumentGraspEnv(gym.Env):
             ("max_yaw", max_yaw, 0.0, 1.0),
             ("max_joint_delta", max_joint_delta, 1e-4, 0.5),
             ("max_gripper_delta", max_gripper_delta, 1e-4, MAX_OPENING),
+            ("max_grip_force", max_grip_force, 0.1, SERVO_FORCE_LIMIT),
         ):
             require_number(name, value, low, high)
         require_int("resolution", resolution, 8, 512)
@@ -307,9 +318,12 @@ class InstrumentGraspEnv(gym.Env):
         self.max_translation, self.max_yaw = max_translation, max_yaw
         self.max_joint_delta = max_joint_delta
         self.gripper_control, self.max_gripper_delta = gripper_control, max_gripper_delta
+        self.max_grip_force = max_grip_force
         self.intrinsics = CameraIntrinsics(width=resolution, height=resolution)
         self._depth_backend = depth_backend
         self._worlds = {name: _World(name, timestep) for name in names}
+        for world in self._worlds.values():
+            world.gripper.use_force_commands(gripper_control == "force")
         self.world: _World = self._worlds[names[0]]
 
         action_dim = 5 if controller == "ee_delta" else 7
@@ -390,6 +404,8 @@ class InstrumentGraspEnv(gym.Env):
             world.gripper.command(
                 world.gripper.commanded_opening() + self.max_gripper_delta * action[-1]
             )
+        elif self.gripper_control == "force":
+            world.gripper.grip(self.max_grip_force * float(action[-1]))
         else:
             world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
 

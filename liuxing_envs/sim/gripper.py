@@ -28,11 +28,17 @@ GRIPPER_PREFIX = "gripper/"
 #: of a firm grasp at 50-155 um/s (mujoco issue 3328); 10 cut that about 110-fold.
 GRASP_NOSLIP_ITERATIONS = 10
 MAX_OPENING = 0.08  # m, both fingers fully open
+SERVO_FORCE_LIMIT = 40.0  # N, the finger servos' forcerange in the asset
 FINGER_JOINTS = ("left_finger_joint", "right_finger_joint")
 FINGER_ACTUATORS = ("left_finger", "right_finger")
 PAD_GEOMS = ("left_pad", "right_pad")
 PAD_TOUCH_SENSORS = ("left_pad_touch", "right_pad_touch")
 TCP_SITE = GRIPPER_PREFIX + "tcp"
+#: Finger joint damping (N s/m) under force commands. A force-limited servo drives its finger
+#: at the full commanded force until it touches; this damping caps the closing speed at
+#: force / damping (6 cm/s at 2.5 N), as an industrial gripper's speed setting does, so the
+#: pads meet a handle without an impact spike.
+FORCE_COMMAND_DAMPING = 40.0
 
 
 def attach_gripper(spec: mujoco.MjSpec, *, noslip_iterations: int = GRASP_NOSLIP_ITERATIONS):
@@ -65,6 +71,7 @@ class Gripper:
         sensors = ids("sensor", PAD_TOUCH_SENSORS)
         self._touch_adr = model.sensor_adr[sensors]
         self.max_force = float(model.actuator_forcerange[self._actuators[0], 1])
+        self._servo_damping = model.dof_damping[self._dof_idx].copy()
         self._wrench = np.zeros(6)
 
     def opening(self) -> float:
@@ -76,12 +83,30 @@ class Gripper:
         half = 0.5 * float(np.clip(opening, 0.0, MAX_OPENING))
         self.data.ctrl[self._actuators] = half
 
+    def grip(self, force: float) -> None:
+        """Force command, as an industrial gripper's force setting: each finger servos to the
+        end of its travel with at most ``|force|`` N, closing for ``force > 0`` and opening
+        for ``force < 0``. A held object is then squeezed with the commanded force, and
+        fingers closing on nothing stop at the closed position without pressing the pads
+        together. Needs :meth:`use_force_commands` first."""
+        limit = min(abs(float(force)), self.max_force)
+        self.model.actuator_forcerange[self._actuators] = (-limit, limit)
+        self.data.ctrl[self._actuators] = 0.0 if force > 0.0 else 0.5 * MAX_OPENING
+
+    def use_force_commands(self, enabled: bool = True) -> None:
+        """Damp the fingers for :meth:`grip` (see FORCE_COMMAND_DAMPING), or restore the
+        position servo's own damping."""
+        damping = FORCE_COMMAND_DAMPING if enabled else self._servo_damping
+        self.model.dof_damping[self._dof_idx] = damping
+
     def set_opening(self, opening: float) -> None:
-        """Teleport the fingers to ``opening`` at rest and hold them there (for resets)."""
+        """Teleport the fingers to ``opening`` at rest and hold them there with the servo's
+        full force (for resets)."""
         half = 0.5 * float(np.clip(opening, 0.0, MAX_OPENING))
         self.data.qpos[self._qpos_idx] = half
         self.data.qvel[self._dof_idx] = 0.0
         self.data.ctrl[self._actuators] = half
+        self.model.actuator_forcerange[self._actuators] = (-self.max_force, self.max_force)
 
     def commanded_opening(self) -> float:
         return float(np.sum(self.data.ctrl[self._actuators]))
