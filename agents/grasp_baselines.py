@@ -265,13 +265,7 @@ class ScriptedGrasp:
                 self.opening_command = 0.0
             else:
                 self._regulate_grip(forces, opening, self.grip_force)
-            if self.squeeze:
-                firm = forces.min() > 0
-            elif self.env.gripper_control == "force":
-                # A force command is met exactly, give or take the solver's last digits.
-                firm = forces.min() >= FORCE_COMMAND_FIRM * self.grip_force
-            else:
-                firm = forces.min() >= self.grip_force
+            firm = forces.min() > 0 if self.squeeze else forces.min() >= self._firm_force()
             self._settled = self._settled + 1 if firm else 0
             if self._settled >= SETTLE_STEPS:
                 self.lift_target = tcp + [0.0, 0.0, LIFT_HEIGHT]
@@ -323,17 +317,22 @@ class ScriptedGrasp:
             grip = 2.0 * self.opening_command / MAX_OPENING - 1.0
         return np.array([*move, turn, grip], dtype=np.float32)
 
+    def _firm_force(self) -> float:
+        """The pad force at which the close is done; a force command is met exactly, give
+        or take the solver's last digits, so under force commands a little less."""
+        force_commands = self.env.gripper_control == "force"
+        return self.grip_force * (FORCE_COMMAND_FIRM if force_commands else 1.0)
+
     def _grip_force_action(self) -> float:
         """The gripper action under force commands: open with the most force until the
         close, then grip with grip_force (HOLD_FORCE_FRACTION of it while lifting); the
         squeeze closes with the most force."""
-        env = self.env
         if self.phase not in (Phase.CLOSE, Phase.LIFT):
             return -1.0
         if self.squeeze:
             return 1.0
         force = self.grip_force * (HOLD_FORCE_FRACTION if self.phase == Phase.LIFT else 1.0)
-        return min(1.0, force / env.max_grip_force)
+        return min(1.0, force / self.env.max_grip_force)
 
 
 class Squeeze(ScriptedGrasp):

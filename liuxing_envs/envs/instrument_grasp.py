@@ -322,8 +322,9 @@ class InstrumentGraspEnv(gym.Env):
         self.intrinsics = CameraIntrinsics(width=resolution, height=resolution)
         self._depth_backend = depth_backend
         self._worlds = {name: _World(name, timestep) for name in names}
-        for world in self._worlds.values():
-            world.gripper.use_force_commands(gripper_control == "force")
+        if gripper_control == "force":
+            for world in self._worlds.values():
+                world.gripper.use_force_commands()
         self.world: _World = self._worlds[names[0]]
 
         action_dim = 5 if controller == "ee_delta" else 7

@@ -71,7 +71,6 @@ class Gripper:
         sensors = ids("sensor", PAD_TOUCH_SENSORS)
         self._touch_adr = model.sensor_adr[sensors]
         self.max_force = float(model.actuator_forcerange[self._actuators[0], 1])
-        self._servo_damping = model.dof_damping[self._dof_idx].copy()
         self._wrench = np.zeros(6)
 
     def opening(self) -> float:
@@ -93,11 +92,9 @@ class Gripper:
         self.model.actuator_forcerange[self._actuators] = (-limit, limit)
         self.data.ctrl[self._actuators] = 0.0 if force > 0.0 else 0.5 * MAX_OPENING
 
-    def use_force_commands(self, enabled: bool = True) -> None:
-        """Damp the fingers for :meth:`grip` (see FORCE_COMMAND_DAMPING), or restore the
-        position servo's own damping."""
-        damping = FORCE_COMMAND_DAMPING if enabled else self._servo_damping
-        self.model.dof_damping[self._dof_idx] = damping
+    def use_force_commands(self) -> None:
+        """Damp the fingers for :meth:`grip` (see FORCE_COMMAND_DAMPING)."""
+        self.model.dof_damping[self._dof_idx] = FORCE_COMMAND_DAMPING
 
     def set_opening(self, opening: float) -> None:
         """Teleport the fingers to ``opening`` at rest and hold them there with the servo's
