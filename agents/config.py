@@ -30,6 +30,7 @@ HARNESS_KEYS = {
     "env_kwargs": "keyword arguments of gym.make for training and evaluation",
     "normalize": "wrap in VecNormalize (observations only; vector keys only)",
     "demonstrations": "expert episodes put in SAC's replay buffer first (agents/demonstrations.py)",
+    "start_curriculum": "training episodes that start near the handle (agents/curriculum.py)",
 }
 
 

@@ -39,6 +39,7 @@ from agents.config import (
     require_known,
     split_hyperparams,
 )
+from agents.curriculum import StartNearGrasp, check_start_curriculum
 from agents.demonstrations import check_demonstrations, seed_replay_buffer
 from agents.evaluation import (
     SB3Policy,
@@ -117,6 +118,7 @@ def resolve_config(
         "policy": harness.get("policy", "MultiInputPolicy"),
         "normalize": bool(harness.get("normalize", False)),
         "demonstrations": check_demonstrations(env_id, algo, harness.get("demonstrations")),
+        "start_curriculum": check_start_curriculum(env_id, harness.get("start_curriculum")),
         "env_kwargs": merged_env_kwargs,
         "hyperparams": algo_kwargs,
         "eval_freq": int_at_least("eval-freq", eval_freq, minimum=0),
@@ -191,9 +193,12 @@ def algorithm_kwargs(hyperparams: Mapping) -> dict:
 # --- environments ----------------------------------------------------------------------------
 
 
-def _env_factory(env_id: str, env_kwargs: Mapping, monitor_file: str | None, keys):
+def _env_factory(config: dict, monitor_file: str | None, keys):
     def make():
-        return Monitor(make_env(env_id, env_kwargs), filename=monitor_file, info_keywords=keys)
+        env = make_env(config["env_id"], config["env_kwargs"])
+        if config.get("start_curriculum"):
+            env = StartNearGrasp(env, **config["start_curriculum"])
+        return Monitor(env, filename=monitor_file, info_keywords=keys)
 
     return make
 
@@ -204,8 +209,7 @@ def build_vec_env(config: dict, run_dir: Path) -> gym.Env:
     monitor_dir.mkdir(parents=True, exist_ok=True)
     factories = [
         _env_factory(
-            config["env_id"],
-            config["env_kwargs"],
+            config,
             str(monitor_dir / f"env{rank}_{int(time.time())}"),
             (task.metric,),
         )

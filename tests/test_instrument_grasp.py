@@ -12,7 +12,12 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.grasp_baselines import Phase, PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
-from liuxing_envs.envs.instrument_grasp import DEFAULT_FORCE_LIMIT, InstrumentGraspEnv
+from liuxing_envs.envs.instrument_grasp import (
+    DEFAULT_FORCE_LIMIT,
+    READY_OPENING,
+    READY_TCP,
+    InstrumentGraspEnv,
+)
 from liuxing_envs.sim.gripper import MAX_OPENING
 
 REWARD_TERMS = (
@@ -207,6 +212,70 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
         env.reset(options={"instrument": "spoon"})
 
 
+def test_tool_start_puts_the_open_jaws_above_and_across_the_handle():
+    env = InstrumentGraspEnv(instrument_set="all")
+    starts = [((0.0, 0.0, 0.02), 0.0), ((0.01, -0.01, 0.05), 0.4), ((-0.005, 0.0, 0.012), -0.3)]
+    for seed, (offset, yaw_error) in enumerate(starts):
+        observation, _ = env.reset(
+            seed=seed, options={"tool_start": offset, "tool_yaw_error": yaw_error}
+        )
+        proprio, instrument = observation["proprio"], observation["instrument"]
+        np.testing.assert_allclose(proprio[12:15] - instrument[:3], offset, atol=2e-3)
+        tool_yaw = np.arctan2(proprio[16], proprio[15])
+        handle_yaw = np.arctan2(instrument[4], instrument[3])
+        # The jaws are symmetric: the tool yaw counts modulo a half turn.
+        turned = (tool_yaw - handle_yaw + np.pi / 2) % np.pi - np.pi / 2
+        assert turned == pytest.approx(yaw_error, abs=0.02)
+        assert observation["forces"].max() == 0.0  # nothing touched at the start
+        assert proprio[17] == pytest.approx(READY_OPENING, abs=2e-3)
+    # Jaws around the handle with 2 cm to spare: a 3 N grip holds it within a few steps.
+    gripper = InstrumentGraspEnv(instrument_set="all", gripper_control="force", max_grip_force=3)
+    for seed in range(3):
+        observation, _ = gripper.reset(
+            seed=seed, options={"tool_start": (0.0, 0.0, 0.0), "jaw_clearance": 0.02}
+        )
+        width = gripper.world.instrument.grasp_width
+        assert observation["proprio"][17] == pytest.approx(width + 0.02, abs=2e-3)
+        assert observation["forces"].max() == 0.0
+        for _ in range(5):
+            *_, info = gripper.step(np.array([0, 0, 0, 0, 1], np.float32))
+        assert info["grasped"] and info["peak_force"] < DEFAULT_FORCE_LIMIT
+    observation, _ = env.reset(seed=0)
+    np.testing.assert_allclose(observation["proprio"][12:15], READY_TCP, atol=2e-3)
+    for options, message in (
+        ({"tool_start": (0.0, 0.0, -0.01)}, "tool_start"),
+        ({"tool_start": (0.0, 0.02)}, "tool_start"),
+        ({"tool_start": (0.0, 0.0, 0.05), "tool_yaw_error": 2.0}, "tool_yaw_error"),
+        ({"tool_yaw_error": 0.1}, "needs tool_start"),
+        ({"jaw_clearance": 0.01}, "needs tool_start"),
+        ({"tool_start": (0.0, 0.0, 0.05), "jaw_clearance": -0.01}, "jaw_clearance"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            env.reset(options=options)
+
+
+def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
+    """The same push of closed jaws down onto the handle: the stiff arm trips the protective
+    stop, the compliant one (arm_stiffness=0.1) settles on it with a few newtons."""
+    outcomes = {}
+    for stiffness in (1.0, 0.1):
+        env = gym.make("InstrumentGrasp-v0", gripper_control="force", arm_stiffness=stiffness)
+        env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.02]})
+        peaks = []
+        for step in range(25):
+            down = -0.5 if step >= 5 else 0.0  # 1 cm per step, once the jaws have closed
+            _, _, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
+            peaks.append(info["step_peak_force"])
+            if terminated:
+                break
+        outcomes[stiffness] = (info["hard_limit_exceeded"], peaks)
+    stopped, peaks = outcomes[1.0]
+    assert stopped and peaks[-1] > 3 * DEFAULT_FORCE_LIMIT
+    stopped, peaks = outcomes[0.1]
+    assert not stopped and 0.0 < max(peaks) < 3 * DEFAULT_FORCE_LIMIT
+    assert 0.0 < max(peaks[-10:]) < DEFAULT_FORCE_LIMIT  # resting on the handle
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -224,6 +293,7 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
         ({"gripper_control": "velocity"}, "gripper_control"),
         ({"max_gripper_delta": 0.5}, "max_gripper_delta"),
         ({"max_grip_force": 50.0}, "max_grip_force"),
+        ({"arm_stiffness": 0.0}, "arm_stiffness"),
     ],
 )
 def test_bad_kwargs_name_the_argument(kwargs, message):

@@ -82,6 +82,11 @@ DEFAULT_MAX_GRIPPER_DELTA = 0.004
 #: With gripper_control="force": the grip force (N per finger) at |action| = 1. Above the
 #: default hard limit (15 N), so a force-commanded policy can still squeeze too hard.
 DEFAULT_MAX_GRIP_FORCE = 20.0
+#: Factor on the arm's joint servo stiffness (kp; kv follows its square root, so the damping
+#: stays critical). 1 is the stiff position-controlled arm: a fingertip driven into the
+#: instrument at 1 cm/step presses it with ~36 N. A cobot's compliance mode is softer: at 0.1
+#: the same push peaks at ~13 N. The arm is gravity compensated, so soft servos do not sag.
+DEFAULT_ARM_STIFFNESS = 1.0
 DEFAULT_RESOLUTION = 64
 #: Allowed factors of mass_range and friction_range.
 SCALE_LIMITS = (0.1, 10.0)
@@ -108,7 +113,54 @@ PLACEMENT_REGION = ((0.44, -0.08), (0.56, 0.08))
 TRAY_MARGIN = 0.01  # m
 PLACEMENT_TRIES = 100
 SETTLE_STEPS = 50
+#: Bounds of the ``tool_start`` reset option: the tool centre's offset from the grasp point (m).
+TOOL_START_LOW = np.array([-0.05, -0.05, 0.0])
+TOOL_START_HIGH = np.array([0.05, 0.05, 0.30])
+TOOL_START_MAX_YAW_ERROR = math.pi / 2
 FORCE_COLOUR_RANGE = 15.0  # N shown as full red on the pads in render()
+
+
+def option_tool_start(key, value) -> np.ndarray:
+    """The ``tool_start`` reset option: three finite numbers within TOOL_START_LOW/HIGH."""
+    try:
+        offset = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        offset = np.full(1, np.nan)
+    if (
+        offset.shape != (3,)
+        or not np.isfinite(offset).all()
+        or np.any(offset < TOOL_START_LOW)
+        or np.any(offset > TOOL_START_HIGH)
+    ):
+        raise ValueError(
+            f"reset option {key} must be the tool centre's offset (x, y, z) in m from the grasp "
+            f"point, within {TOOL_START_LOW.tolist()} to {TOOL_START_HIGH.tolist()}, got {value!r}"
+        )
+    return offset
+
+
+def option_yaw_error(key, value) -> float:
+    """The ``tool_yaw_error`` reset option: an angle within +-TOOL_START_MAX_YAW_ERROR."""
+    angle = option_angle(key, value)
+    if abs(angle) > TOOL_START_MAX_YAW_ERROR:
+        raise ValueError(
+            f"reset option {key} must be within +-{TOOL_START_MAX_YAW_ERROR:.4f} rad (a quarter "
+            f"turn: the jaws are symmetric), got {value!r}"
+        )
+    return angle
+
+
+def option_jaw_clearance(key, value) -> float:
+    """The ``jaw_clearance`` reset option: metres of opening beyond the handle's width."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float | np.number)
+        or not 0.0 <= value <= MAX_OPENING
+    ):
+        raise ValueError(
+            f"reset option {key} must be a number in [0, {MAX_OPENING}] m, got {value!r}"
+        )
+    return float(value)
 
 
 def tool_down(yaw: float) -> np.ndarray:
@@ -149,7 +201,10 @@ class InstrumentGraspEnv(gym.Env):
     With ``ee_delta`` (default) the tool stays pointing down; the target is clipped to the
     workspace above the tray (the fingertips stop 1 mm above its floor) and solved with the
     arm's closed-form IK; a target it cannot reach leaves the arm's set-point unchanged.
-    Control runs at ``control_hz`` over physics steps of ``timestep`` seconds.
+    Control runs at ``control_hz`` over physics steps of ``timestep`` seconds. The arm's joint
+    servos track their set-points with ``arm_stiffness`` times their full stiffness (1: a stiff
+    position-controlled arm; 0.1: a cobot's compliance mode, which bumps the instrument with a
+    tenth of the force and settles on it gently).
 
     **Observation** ``Dict`` (float32 unless noted), for SB3's ``MultiInputPolicy``:
 
@@ -203,7 +258,11 @@ class InstrumentGraspEnv(gym.Env):
     lies 1 cm inside the rim), optionally with its mass and friction scaled by factors drawn
     from ``mass_range`` / ``friction_range``. The arm starts in a ready pose with the wrist
     camera 0.45 m above the tray and the gripper open 6 cm. ``reset(options=...)`` may fix
-    ``instrument``, ``position`` (grasp point x, y) and ``yaw``. Registered with a
+    ``instrument``, ``position`` (grasp point x, y) and ``yaw``, and may start the arm
+    elsewhere: ``tool_start`` = (x, y, z), the tool centre's offset from the grasp point (m;
+    z 0-0.3), with the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad)
+    and opened to the handle's width plus ``jaw_clearance`` (m) if given (a training
+    curriculum's starts; see ``agents/curriculum.py``). Registered with a
     TimeLimit of 200 steps (10 s; ``gym.make(..., max_episode_steps=N)`` changes it); the
     environment itself never truncates.
 
@@ -212,8 +271,10 @@ class InstrumentGraspEnv(gym.Env):
     (``"rgb_array"``: the overview camera, pads shaded white to red with their force).
 
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
-    ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, added
-    later (the default action is unchanged).
+    ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, then
+    ``arm_stiffness`` and the ``tool_start``, ``tool_yaw_error`` and ``jaw_clearance`` reset
+    options, added later
+    (the defaults are unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -243,6 +304,7 @@ class InstrumentGraspEnv(gym.Env):
         max_joint_delta: float = DEFAULT_MAX_JOINT_DELTA,
         max_gripper_delta: float = DEFAULT_MAX_GRIPPER_DELTA,
         max_grip_force: float = DEFAULT_MAX_GRIP_FORCE,
+        arm_stiffness: float = DEFAULT_ARM_STIFFNESS,
         mass_range: Sequence[float] | None = None,
         friction_range: Sequence[float] | None = None,
         resolution: int = DEFAULT_RESOLUTION,
@@ -273,6 +335,7 @@ class InstrumentGraspEnv(gym.Env):
             ("max_joint_delta", max_joint_delta, 1e-4, 0.5),
             ("max_gripper_delta", max_gripper_delta, 1e-4, MAX_OPENING),
             ("max_grip_force", max_grip_force, 0.1, SERVO_FORCE_LIMIT),
+            ("arm_stiffness", arm_stiffness, 0.01, 1.0),
         ):
             require_number(name, value, low, high)
         require_int("resolution", resolution, 8, 512)
@@ -321,7 +384,8 @@ class InstrumentGraspEnv(gym.Env):
         self.max_grip_force = max_grip_force
         self.intrinsics = CameraIntrinsics(width=resolution, height=resolution)
         self._depth_backend = depth_backend
-        self._worlds = {name: _World(name, timestep) for name in names}
+        self.arm_stiffness = float(arm_stiffness)
+        self._worlds = {name: _World(name, timestep, self.arm_stiffness) for name in names}
         if gripper_control == "force":
             for world in self._worlds.values():
                 world.gripper.use_force_commands()
@@ -353,8 +417,14 @@ class InstrumentGraspEnv(gym.Env):
                 "instrument": option_in(self.instrument_names),
                 "position": option_xy,
                 "yaw": option_angle,
+                "tool_start": option_tool_start,
+                "tool_yaw_error": option_yaw_error,
+                "jaw_clearance": option_jaw_clearance,
             },
         )
+        for key in ("tool_yaw_error", "jaw_clearance"):
+            if key in options and "tool_start" not in options:
+                raise ValueError(f"reset option {key} needs tool_start as well")
         super().reset(seed=seed)
         self._reset_seed = seed
         rng = self.np_random
@@ -378,7 +448,15 @@ class InstrumentGraspEnv(gym.Env):
             self._renderer.close()
             self._renderer = None
         self.world = world
-        self.world.reset(xy, yaw, mass_scale, friction_scale)
+        self.world.reset(
+            xy,
+            yaw,
+            mass_scale,
+            friction_scale,
+            options.get("tool_start"),
+            options.get("tool_yaw_error", 0.0),
+            options.get("jaw_clearance"),
+        )
 
         self._steps = 0
         self._hold_count = 0
@@ -634,7 +712,7 @@ class _World:
 
     PREFIX = "instrument/"
 
-    def __init__(self, instrument: str, timestep: float) -> None:
+    def __init__(self, instrument: str, timestep: float, arm_stiffness: float = 1.0) -> None:
         spec = load_scene_spec()
         attach_gripper(spec)
         self.tray = add_tray(spec)
@@ -673,12 +751,29 @@ class _World:
                 for n in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
             ]
         )
+        # A softer servo keeps its damping ratio: kp scales, kv with its square root.
+        model.actuator_gainprm[self._arm_actuators, 0] *= arm_stiffness
+        model.actuator_biasprm[self._arm_actuators, 1] *= arm_stiffness
+        model.actuator_biasprm[self._arm_actuators, 2] *= math.sqrt(arm_stiffness)
         self._camera_id = model.camera(WRIST_CAMERA).id
         self._kinematics = mujoco.MjData(model)
         self._camera: DepthCamera | None = None
         self._rgb: mujoco.Renderer | None = None
 
-    def reset(self, grasp_xy, yaw: float, mass_scale: float, friction_scale: float) -> None:
+    def reset(
+        self,
+        grasp_xy,
+        yaw: float,
+        mass_scale: float,
+        friction_scale: float,
+        tool_start=None,
+        tool_yaw_error: float = 0.0,
+        jaw_clearance: float | None = None,
+    ) -> None:
+        """Place the instrument and the arm: in the ready pose, or (``tool_start``, an offset
+        in m) with the tool centre that far from the grasp point and the jaws across the
+        handle, turned from there by ``tool_yaw_error`` (rad) and open to the handle's width
+        plus ``jaw_clearance`` (m; default READY_OPENING); then let the scene settle."""
         model, data = self.model, self.data
         reset_to_home(model, data)
         model.opt.noslip_iterations = 0  # the pads start clear of everything (see step())
@@ -698,16 +793,34 @@ class _World:
             math.sin(yaw / 2),
         ]
         data.qvel[self._joint_dof : self._joint_dof + 6] = 0.0
+        tcp, tool_yaw = READY_TCP, 0.0
+        if tool_start is not None:
+            mujoco.mj_kinematics(model, data)
+            axis = self.grasp_axis()
+            # The jaws close along the tool's y axis: across the handle at the handle's yaw
+            # (either half turn will do; this one keeps the wrist nearest its ready angle).
+            tool_yaw = (math.atan(axis[1] / axis[0]) if axis[0] else math.pi / 2) + tool_yaw_error
+            tcp = np.clip(
+                self.grasp_point() + tool_start, self.workspace_lower, self.workspace_upper
+            )
         ready = self.arm.solve_ik(
-            READY_TCP,
-            tool_down(0.0),
+            tcp,
+            tool_down(tool_yaw),
             site=TCP_SITE,
             seed_qpos=HOME_QPOS,
             method="analytic",
             check_collisions=False,
         )
+        if not ready.success:
+            raise ValueError(
+                f"reset option tool_start={np.asarray(tool_start).tolist()} puts the tool centre "
+                f"at {np.round(tcp, 4).tolist()}, which the arm cannot reach"
+            )
         self.arm.set_qpos(ready.qpos)
-        self.gripper.set_opening(READY_OPENING)
+        opening = READY_OPENING
+        if jaw_clearance is not None:
+            opening = min(MAX_OPENING, self.instrument.grasp_width + jaw_clearance)
+        self.gripper.set_opening(opening)
         mujoco.mj_forward(model, data)
         mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
 
