@@ -88,6 +88,17 @@ def int_at_least(name: str, value, minimum: int = 1) -> int:
     return int(value)
 
 
+def number_in(name: str, value, low: float, high: float) -> float:
+    """``value`` as a float, or ConfigError unless it is a number in [low, high]."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not low <= value <= high
+    ):
+        raise ConfigError(f"{name} must be a number in [{low}, {high}], got {value!r}")
+    return float(value)
+
+
 def require_known(kind: str, name: str, allowed: Sequence[str]) -> str:
     if name not in allowed:
         raise ConfigError(

@@ -39,7 +39,13 @@ from collections.abc import Mapping
 import gymnasium as gym
 import numpy as np
 
-from agents.config import ConfigError
+from agents.config import ConfigError, number_in, require_known
+from liuxing_envs.envs.instrument_grasp import (
+    TOOL_START_HIGH,
+    TOOL_START_LOW,
+    TOOL_START_MAX_YAW_ERROR,
+)
+from liuxing_envs.sim.gripper import MAX_OPENING
 
 ENV_IDS = ("InstrumentGrasp-v0",)
 DEFAULTS = {
@@ -50,10 +56,9 @@ DEFAULTS = {
     "clearance": [0.02, 0.05],
 }
 #: The env's bounds of its reset options (see InstrumentGraspEnv.reset).
-HEIGHT_LIMITS = (0.0, 0.30)
-CLEARANCE_LIMITS = (0.0, 0.08)
-MAX_JITTER = 0.05
-MAX_YAW_JITTER = np.pi / 2
+HEIGHT_LIMITS = (float(TOOL_START_LOW[2]), float(TOOL_START_HIGH[2]))
+MAX_JITTER = float(TOOL_START_HIGH[0])
+MAX_YAW_JITTER = TOOL_START_MAX_YAW_ERROR
 
 
 class StartNearGrasp(gym.Wrapper):
@@ -78,10 +83,13 @@ class StartNearGrasp(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if seed is not None:
-            # Its own stream, seeded with the env's: the same seeds give the same starts.
+            # Its own stream, seeded with the env's: the same seeds give the same starts (an
+            # unseeded first reset draws from OS entropy, as the env itself then does).
             self._rng = np.random.default_rng([seed, 1])
         options = dict(options or {})
-        if "tool_start" not in options and self._rng.random() < self.probability:
+        # A caller's own start (any of its options) is left alone.
+        chosen = options.keys() & {"tool_start", "tool_yaw_error", "jaw_clearance"}
+        if not chosen and self._rng.random() < self.probability:
             rng = self._rng
             options["tool_start"] = [
                 rng.uniform(-self.jitter, self.jitter),
@@ -100,33 +108,25 @@ def check_start_curriculum(env_id: str, settings) -> dict | None:
     if env_id not in ENV_IDS:
         raise ConfigError(f"start_curriculum is for {', '.join(ENV_IDS)} only, not {env_id}")
     if not isinstance(settings, Mapping):
-        raise ConfigError(f"start_curriculum must be a mapping of {sorted(DEFAULTS)}")
-    unknown = sorted(set(settings) - set(DEFAULTS))
-    if unknown:
-        raise ConfigError(f"unknown start_curriculum key(s) {unknown}; allowed: {sorted(DEFAULTS)}")
+        raise ConfigError(f"start_curriculum must be a mapping of {', '.join(DEFAULTS)}")
+    for key in settings:
+        require_known("start_curriculum key", key, tuple(DEFAULTS))
     merged = {**DEFAULTS, **settings}
-    _require_number("probability", merged["probability"], 0.0, 1.0)
-    _require_number("jitter", merged["jitter"], 0.0, MAX_JITTER)
-    _require_number("yaw_jitter", merged["yaw_jitter"], 0.0, MAX_YAW_JITTER)
     return {
-        **merged,
-        "height": _range("height", merged["height"], HEIGHT_LIMITS),
-        "clearance": _range("clearance", merged["clearance"], CLEARANCE_LIMITS),
+        "probability": number_in("start_curriculum.probability", merged["probability"], 0, 1),
+        "height": _range("height", merged["height"], *HEIGHT_LIMITS),
+        "jitter": number_in("start_curriculum.jitter", merged["jitter"], 0, MAX_JITTER),
+        "yaw_jitter": number_in(
+            "start_curriculum.yaw_jitter", merged["yaw_jitter"], 0, MAX_YAW_JITTER
+        ),
+        "clearance": _range("clearance", merged["clearance"], 0.0, MAX_OPENING),
     }
 
 
-def _range(name: str, value, limits: tuple[float, float]) -> list[float]:
+def _range(name: str, value, low: float, high: float) -> list[float]:
     if not (isinstance(value, list | tuple) and len(value) == 2):
         raise ConfigError(f"start_curriculum.{name} must be a pair [low, high] in m, got {value!r}")
-    for bound in value:
-        _require_number(name, bound, *limits)
-    if value[0] > value[1]:
+    bounds = [number_in(f"start_curriculum.{name}", bound, low, high) for bound in value]
+    if bounds[0] > bounds[1]:
         raise ConfigError(f"start_curriculum.{name} must be [low, high], low <= high, got {value}")
-    return [float(bound) for bound in value]
-
-
-def _require_number(name: str, value, low: float, high: float) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not low <= value <= high:
-        raise ConfigError(
-            f"start_curriculum.{name} must be a number in [{low}, {high}], got {value!r}"
-        )
+    return bounds

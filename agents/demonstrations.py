@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.logger import configure
 
-from agents.config import ConfigError, int_at_least, require_known
+from agents.config import ConfigError, int_at_least, number_in, require_known
 from agents.evaluation import make_env
 from agents.grasp_baselines import PrivilegedGrasp
 
@@ -84,15 +84,7 @@ def check_demonstrations(env_id: str, algo: str, spec) -> dict | None:
     int_at_least("demonstrations.episodes", resolved["episodes"])
     int_at_least("demonstrations.pretrain_steps", resolved["pretrain_steps"], minimum=0)
     for key in ("action_noise", "gripper_noise"):
-        noise = resolved[key]
-        if (
-            isinstance(noise, bool)
-            or not isinstance(noise, int | float)
-            or not 0.0 <= noise <= MAX_ACTION_NOISE
-        ):
-            raise ConfigError(
-                f"demonstrations.{key} must be a number in [0, {MAX_ACTION_NOISE}], got {noise!r}"
-            )
+        resolved[key] = number_in(f"demonstrations.{key}", resolved[key], 0.0, MAX_ACTION_NOISE)
     return resolved
 
 

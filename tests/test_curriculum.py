@@ -7,7 +7,7 @@ import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.config import ConfigError
 from agents.curriculum import StartNearGrasp, check_start_curriculum
 from agents.evaluation import make_env
-from agents.training import build_vec_env, resolve_config
+from agents.training import PeriodicEvaluation, build_vec_env, resolve_config
 from liuxing_envs.envs.instrument_grasp import READY_TCP
 
 
@@ -41,9 +41,13 @@ def test_starts_near_the_handle_as_often_and_as_close_as_configured():
     np.testing.assert_allclose(far, READY_TCP, atol=2e-3)
     # Seeded: the same seeds give the same starts; an explicit start is left alone.
     np.testing.assert_array_equal(tool_offsets(env, range(40)), offsets)
-    observation, _ = env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.2]})
+    always = StartNearGrasp(make_env("InstrumentGrasp-v0"), probability=1.0)
+    observation, _ = always.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.2]})
     offset = observation["proprio"][12:15] - observation["instrument"][:3]
     np.testing.assert_allclose(offset, [0.0, 0.0, 0.2], atol=2e-3)
+    # The caller's own start options are passed on as given, never mixed with drawn ones.
+    with pytest.raises(ValueError, match="jaw_clearance needs tool_start"):
+        always.reset(seed=0, options={"jaw_clearance": 0.01})
 
 
 def test_only_the_training_envs_start_near_the_handle(tmp_path):
@@ -55,11 +59,14 @@ def test_only_the_training_envs_start_near_the_handle(tmp_path):
     assert config["start_curriculum"]["clearance"] == [0.02, 0.05]  # the defaults filled in
     training = build_vec_env(config, tmp_path)
     observation = training.reset()
+    training.close()
     offset = observation["proprio"][0, 12:15] - observation["instrument"][0, :3]
     assert offset[2] < 0.1
-    # Evaluation makes its envs from the env kwargs alone: the ready pose.
-    evaluation = make_env(config["env_id"], config["env_kwargs"])
-    np.testing.assert_allclose(evaluation.reset(seed=0)[0]["proprio"][12:15], READY_TCP, atol=2e-3)
+    evaluation = PeriodicEvaluation(config, tmp_path, every=1)
+    for seed in evaluation.seeds:
+        observation, _ = evaluation.env.reset(seed=seed)
+        np.testing.assert_allclose(observation["proprio"][12:15], READY_TCP, atol=2e-3)
+    evaluation.env.close()
 
 
 @pytest.mark.parametrize(

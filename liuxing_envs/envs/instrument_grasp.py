@@ -82,8 +82,8 @@ DEFAULT_MAX_GRIPPER_DELTA = 0.004
 #: With gripper_control="force": the grip force (N per finger) at |action| = 1. Above the
 #: default hard limit (15 N), so a force-commanded policy can still squeeze too hard.
 DEFAULT_MAX_GRIP_FORCE = 20.0
-#: Factor on the arm's joint servo stiffness (kp; kv follows its square root, so the damping
-#: stays critical). 1 is the stiff position-controlled arm: a fingertip driven into the
+#: Factor on the arm's joint servo stiffness (kp; kv follows its square root, so each servo
+#: keeps its damping ratio). 1 is the stiff position-controlled arm: a fingertip driven into the
 #: instrument at 1 cm/step presses it with ~36 N. A cobot's compliance mode is softer: at 0.1
 #: the same push peaks at ~13 N. The arm is gravity compensated, so soft servos do not sag.
 DEFAULT_ARM_STIFFNESS = 1.0
@@ -260,7 +260,8 @@ class InstrumentGraspEnv(gym.Env):
     camera 0.45 m above the tray and the gripper open 6 cm. ``reset(options=...)`` may fix
     ``instrument``, ``position`` (grasp point x, y) and ``yaw``, and may start the arm
     elsewhere: ``tool_start`` = (x, y, z), the tool centre's offset from the grasp point (m;
-    z 0-0.3), with the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad)
+    z 0-0.3; clipped to the workspace, so offsets below ~3 mm all start at its floor), with
+    the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad)
     and opened to the handle's width plus ``jaw_clearance`` (m) if given (a training
     curriculum's starts; see ``agents/curriculum.py``). Registered with a
     TimeLimit of 200 steps (10 s; ``gym.make(..., max_episode_steps=N)`` changes it); the
@@ -448,6 +449,7 @@ class InstrumentGraspEnv(gym.Env):
             self._renderer.close()
             self._renderer = None
         self.world = world
+        self._episode_ready = False  # until the reset below has succeeded
         self.world.reset(
             xy,
             yaw,
