@@ -13,6 +13,7 @@ from gymnasium import spaces
 from liuxing_envs.envs.validation import (
     as_action,
     checked_reset_options,
+    finite_vector,
     option_angle,
     option_in,
     option_xy,
@@ -122,16 +123,8 @@ FORCE_COLOUR_RANGE = 15.0  # N shown as full red on the pads in render()
 
 def option_tool_start(key, value) -> np.ndarray:
     """The ``tool_start`` reset option: three finite numbers within TOOL_START_LOW/HIGH."""
-    try:
-        offset = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        offset = np.full(1, np.nan)
-    if (
-        offset.shape != (3,)
-        or not np.isfinite(offset).all()
-        or np.any(offset < TOOL_START_LOW)
-        or np.any(offset > TOOL_START_HIGH)
-    ):
+    offset = finite_vector(value, 3)
+    if offset is None or np.any(offset < TOOL_START_LOW) or np.any(offset > TOOL_START_HIGH):
         raise ValueError(
             f"reset option {key} must be the tool centre's offset (x, y, z) in m from the grasp "
             f"point, within {TOOL_START_LOW.tolist()} to {TOOL_START_HIGH.tolist()}, got {value!r}"
@@ -152,14 +145,7 @@ def option_yaw_error(key, value) -> float:
 
 def option_jaw_clearance(key, value) -> float:
     """The ``jaw_clearance`` reset option: metres of opening beyond the handle's width."""
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, int | float | np.number)
-        or not 0.0 <= value <= MAX_OPENING
-    ):
-        raise ValueError(
-            f"reset option {key} must be a number in [0, {MAX_OPENING}] m, got {value!r}"
-        )
+    require_number(f"reset option {key}", value, 0.0, MAX_OPENING)
     return float(value)
 
 
@@ -261,9 +247,9 @@ class InstrumentGraspEnv(gym.Env):
     ``instrument``, ``position`` (grasp point x, y) and ``yaw``, and may start the arm
     elsewhere: ``tool_start`` = (x, y, z), the tool centre's offset from the grasp point (m;
     z 0-0.3; clipped to the workspace, so offsets below ~3 mm all start at its floor), with
-    the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad)
-    and opened to the handle's width plus ``jaw_clearance`` (m) if given (a training
-    curriculum's starts; see ``agents/curriculum.py``). Registered with a
+    the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad) and opened to
+    the handle's width plus ``jaw_clearance`` (m) if given (a training curriculum's starts;
+    see ``agents/curriculum.py``). Registered with a
     TimeLimit of 200 steps (10 s; ``gym.make(..., max_episode_steps=N)`` changes it); the
     environment itself never truncates.
 
@@ -274,8 +260,7 @@ class InstrumentGraspEnv(gym.Env):
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
     ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, then
     ``arm_stiffness`` and the ``tool_start``, ``tool_yaw_error`` and ``jaw_clearance`` reset
-    options, added later
-    (the defaults are unchanged).
+    options, added later (the defaults are unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -455,9 +440,9 @@ class InstrumentGraspEnv(gym.Env):
             yaw,
             mass_scale,
             friction_scale,
-            options.get("tool_start"),
-            options.get("tool_yaw_error", 0.0),
-            options.get("jaw_clearance"),
+            tool_start=options.get("tool_start"),
+            tool_yaw_error=options.get("tool_yaw_error", 0.0),
+            jaw_clearance=options.get("jaw_clearance"),
         )
 
         self._steps = 0
@@ -714,7 +699,7 @@ class _World:
 
     PREFIX = "instrument/"
 
-    def __init__(self, instrument: str, timestep: float, arm_stiffness: float = 1.0) -> None:
+    def __init__(self, instrument: str, timestep: float, arm_stiffness: float) -> None:
         spec = load_scene_spec()
         attach_gripper(spec)
         self.tray = add_tray(spec)

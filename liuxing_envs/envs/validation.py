@@ -84,12 +84,18 @@ def option_in(allowed) -> Callable:
     return check
 
 
-def option_xy(key, value) -> np.ndarray:
+def finite_vector(value, size: int) -> np.ndarray | None:
+    """``value`` as ``size`` finite floats, or None if it is not that."""
     try:
-        xy = np.asarray(value, dtype=float)
+        vector = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        xy = np.full(1, np.nan)
-    if xy.shape != (2,) or not np.isfinite(xy).all():
+        return None
+    return vector if vector.shape == (size,) and np.isfinite(vector).all() else None
+
+
+def option_xy(key, value) -> np.ndarray:
+    xy = finite_vector(value, 2)
+    if xy is None:
         raise ValueError(f"reset option {key} must be two finite numbers (x, y), got {value!r}")
     return xy
 
