@@ -22,6 +22,15 @@ Florensa et al., 2017). Nothing else changes: the reward, the physics and the ep
 are the env's own, and the periodic and final evaluations never use the wrapper, so every
 success figure is from the ready pose.
 
+The curriculum can also move its starts away from the handle as the learner masters them
+(``advance_at``): :class:`AdvanceStartLevel`, a training callback, keeps the success of the
+last ``window`` curriculum episodes and, each time their success rate reaches ``advance_at``,
+raises the start *level* by ``level_step`` (at most 1) and starts a new window. At level l the
+height's upper end, the jitter and the yaw jitter move the fraction l of the way from their
+configured values to the env's limits (30 cm above the grasp point, 5 cm, a quarter turn), so
+level 1 starts anywhere from the handle to the height of the ready pose. The level is one for
+all training envs, saved with every checkpoint and restored by ``--resume``.
+
 Configured by the ``start_curriculum`` harness key of a hyper-parameter entry::
 
     start_curriculum:
@@ -30,14 +39,19 @@ Configured by the ``start_curriculum`` harness key of a hyper-parameter entry::
       jitter: 0.005           # m, largest x and y offset
       yaw_jitter: 0.5         # rad, largest turn from across the handle
       clearance: [0.02, 0.05] # m of opening beyond the handle's width
+      advance_at: null        # success rate that raises the level (null: the starts stay)
+      window: 50              # curriculum episodes per success rate
+      level_step: 0.1         # level added at each advance
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Mapping
 
 import gymnasium as gym
 import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
 
 from agents.config import ConfigError, number_in, require_known
 from liuxing_envs.envs.instrument_grasp import (
@@ -48,38 +62,55 @@ from liuxing_envs.envs.instrument_grasp import (
 from liuxing_envs.sim.gripper import MAX_OPENING
 
 ENV_IDS = ("InstrumentGrasp-v0",)
-DEFAULTS = {
+#: Settings of the starts (:class:`StartNearGrasp`).
+START_DEFAULTS = {
     "probability": 0.5,
     "height": [0.0, 0.06],
     "jitter": 0.005,
     "yaw_jitter": 0.5,
     "clearance": [0.02, 0.05],
 }
+#: Settings of the level's advance (:class:`AdvanceStartLevel`).
+ADVANCE_DEFAULTS = {"advance_at": None, "window": 50, "level_step": 0.1}
+DEFAULTS = {**START_DEFAULTS, **ADVANCE_DEFAULTS}
 #: The env's bounds of its reset options (see InstrumentGraspEnv.reset).
 HEIGHT_LIMITS = (float(TOOL_START_LOW[2]), float(TOOL_START_HIGH[2]))
 MAX_JITTER = float(TOOL_START_HIGH[0])
 MAX_YAW_JITTER = TOOL_START_MAX_YAW_ERROR
+MAX_WINDOW = 10_000
+#: ``info`` key, set at the end of every episode: whether it started near the handle.
+STARTED_NEAR = "curriculum_start"
 
 
 class StartNearGrasp(gym.Wrapper):
-    """Start an episode, with probability ``probability``, with the tool near the handle."""
+    """Start an episode, with probability ``probability``, with the tool near the handle.
+
+    ``level`` (0 to 1; :meth:`set_level`) widens the starts towards the env's limits. The last
+    step of every episode carries ``info["curriculum_start"]``: whether it started near the
+    handle."""
 
     def __init__(
         self,
         env: gym.Env,
         *,
-        probability: float = DEFAULTS["probability"],
-        height=tuple(DEFAULTS["height"]),
-        jitter: float = DEFAULTS["jitter"],
-        yaw_jitter: float = DEFAULTS["yaw_jitter"],
-        clearance=tuple(DEFAULTS["clearance"]),
+        probability: float = START_DEFAULTS["probability"],
+        height=tuple(START_DEFAULTS["height"]),
+        jitter: float = START_DEFAULTS["jitter"],
+        yaw_jitter: float = START_DEFAULTS["yaw_jitter"],
+        clearance=tuple(START_DEFAULTS["clearance"]),
+        level: float = 0.0,
     ) -> None:
         super().__init__(env)
         self.probability = probability
         self.height = tuple(height)
         self.jitter, self.yaw_jitter = jitter, yaw_jitter
         self.clearance = tuple(clearance)
+        self.set_level(level)
         self._rng = np.random.default_rng()
+        self._started_near = False
+
+    def set_level(self, level: float) -> None:
+        self.level = number_in("start level", level, 0.0, 1.0)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if seed is not None:
@@ -89,16 +120,91 @@ class StartNearGrasp(gym.Wrapper):
         options = dict(options or {})
         # A caller's own start (any of its options) is left alone.
         chosen = options.keys() & {"tool_start", "tool_yaw_error", "jaw_clearance"}
-        if not chosen and self._rng.random() < self.probability:
-            rng = self._rng
-            options["tool_start"] = [
-                rng.uniform(-self.jitter, self.jitter),
-                rng.uniform(-self.jitter, self.jitter),
-                rng.uniform(*self.height),
-            ]
-            options["tool_yaw_error"] = rng.uniform(-self.yaw_jitter, self.yaw_jitter)
-            options["jaw_clearance"] = rng.uniform(*self.clearance)
+        self._started_near = not chosen and self._rng.random() < self.probability
+        if self._started_near:
+            options.update(self._draw_start())
         return self.env.reset(seed=seed, options=options)
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        if terminated or truncated:
+            info = {**info, STARTED_NEAR: self._started_near}
+        return observation, reward, terminated, truncated, info
+
+    def _draw_start(self) -> dict:
+        rng, level = self._rng, self.level
+        height = (self.height[0], _towards(self.height[1], HEIGHT_LIMITS[1], level))
+        jitter = _towards(self.jitter, MAX_JITTER, level)
+        yaw_jitter = _towards(self.yaw_jitter, MAX_YAW_JITTER, level)
+        return {
+            "tool_start": [
+                rng.uniform(-jitter, jitter),
+                rng.uniform(-jitter, jitter),
+                rng.uniform(*height),
+            ],
+            "tool_yaw_error": rng.uniform(-yaw_jitter, yaw_jitter),
+            "jaw_clearance": rng.uniform(*self.clearance),
+        }
+
+
+def _towards(value: float, limit: float, level: float) -> float:
+    return value + level * (limit - value)
+
+
+class AdvanceStartLevel(BaseCallback):
+    """Raises the training envs' start level by ``level_step`` each time the success rate of
+    the last ``window`` episodes that started near the handle reaches ``advance_at``.
+
+    :meth:`state` / ``state=`` carry the level, the current window and the history of
+    advances (steps, level) across checkpoints."""
+
+    def __init__(
+        self, advance_at: float, window: int, level_step: float, state: Mapping | None = None
+    ) -> None:
+        super().__init__()
+        self.advance_at, self.level_step = advance_at, level_step
+        state = state or {}
+        self.level = float(state.get("level", 0.0))
+        self.recent = deque((bool(s) for s in state.get("recent", ())), maxlen=window)
+        self.history = [list(entry) for entry in state.get("history", ())]
+
+    def state(self) -> dict:
+        return {"level": self.level, "recent": list(self.recent), "history": self.history}
+
+    def _on_training_start(self) -> None:
+        self.training_env.env_method("set_level", self.level)
+
+    def _on_step(self) -> bool:
+        for done, info in zip(self.locals["dones"], self.locals["infos"], strict=True):
+            if done and info.get(STARTED_NEAR):
+                self.recent.append(bool(info.get("is_success")))
+                self._advance_if_mastered()
+        return True
+
+    def _advance_if_mastered(self) -> None:
+        full = len(self.recent) == self.recent.maxlen
+        if self.level >= 1.0 or not full or np.mean(self.recent) < self.advance_at:
+            return
+        self.level = min(1.0, round(self.level + self.level_step, 6))
+        self.recent.clear()
+        self.history.append([int(self.num_timesteps), self.level])
+        self.training_env.env_method("set_level", self.level)
+        self.logger.record("curriculum/level", self.level)
+        print(f"start curriculum: level {self.level:g} at {self.num_timesteps} steps")
+
+
+def start_settings(settings: Mapping) -> dict:
+    """The :class:`StartNearGrasp` arguments of a ``start_curriculum`` entry."""
+    return {key: settings.get(key, default) for key, default in START_DEFAULTS.items()}
+
+
+def level_callback(settings: Mapping | None, state: Mapping | None) -> AdvanceStartLevel | None:
+    """The callback that advances the start level, or None where the starts stay put."""
+    if not settings or settings.get("advance_at") is None:
+        return None
+    window = settings.get("window", ADVANCE_DEFAULTS["window"])
+    level_step = settings.get("level_step", ADVANCE_DEFAULTS["level_step"])
+    return AdvanceStartLevel(settings["advance_at"], window, level_step, state)
 
 
 def check_start_curriculum(env_id: str, settings) -> dict | None:
@@ -112,6 +218,13 @@ def check_start_curriculum(env_id: str, settings) -> dict | None:
     for key in settings:
         require_known("start_curriculum key", key, tuple(DEFAULTS))
     merged = {**DEFAULTS, **settings}
+    window = merged["window"]
+    if isinstance(window, bool) or not isinstance(window, int) or not 1 <= window <= MAX_WINDOW:
+        raise ConfigError(
+            f"start_curriculum.window must be a whole number of episodes in [1, {MAX_WINDOW}], "
+            f"got {window!r}"
+        )
+    advance_at = merged["advance_at"]
     return {
         "probability": number_in("start_curriculum.probability", merged["probability"], 0, 1),
         "height": _range("height", merged["height"], *HEIGHT_LIMITS),
@@ -120,6 +233,11 @@ def check_start_curriculum(env_id: str, settings) -> dict | None:
             "start_curriculum.yaw_jitter", merged["yaw_jitter"], 0, MAX_YAW_JITTER
         ),
         "clearance": _range("clearance", merged["clearance"], 0.0, MAX_OPENING),
+        "advance_at": None
+        if advance_at is None
+        else number_in("start_curriculum.advance_at", advance_at, 0, 1),
+        "window": window,
+        "level_step": number_in("start_curriculum.level_step", merged["level_step"], 0.001, 1),
     }
 
 

@@ -6,7 +6,8 @@ Layout (file names are constants here, so train.py, evaluate.py and tests agree)
     <run>/model.zip           final policy            (+ vecnormalize.pkl when normalising)
     <run>/best_model.zip      best periodic evaluation (+ best_vecnormalize.pkl)
     <run>/checkpoints/        model_<steps>_steps.zip, replay_buffer_<steps>_steps.pkl (SAC),
-                              vecnormalize_<steps>_steps.pkl
+                              vecnormalize_<steps>_steps.pkl, curriculum_<steps>_steps.json
+                              (the start curriculum's level, when it advances)
     <run>/evaluations.csv     periodic evaluation history
     <run>/monitor/            per-episode training returns (SB3 Monitor files)
     <run>/tensorboard/        TensorBoard logs (with --tensorboard)
@@ -20,6 +21,7 @@ from __future__ import annotations
 import csv
 import importlib.metadata
 import io
+import json
 import os
 import pickle
 import platform
@@ -88,6 +90,7 @@ def checkpoint_paths(run_dir: Path, steps: int) -> dict[str, Path]:
         "model": folder / f"model_{steps}_steps.zip",
         "replay_buffer": folder / f"replay_buffer_{steps}_steps.pkl",
         "normalizer": folder / f"vecnormalize_{steps}_steps.pkl",
+        "curriculum": folder / f"curriculum_{steps}_steps.json",
     }
 
 
@@ -215,6 +218,24 @@ def load_replay_buffer(model, path: Path) -> None:
             f"{str(path)!r} is not a readable replay buffer (truncated, corrupt or foreign): "
             f"{type(error).__name__}: {error}"
         ) from error
+
+
+def read_curriculum_state(path: Path) -> dict | None:
+    """A checkpoint's start-curriculum state, None where the run saved none, or a
+    RunFolderError naming the file when it is unreadable."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    try:
+        state = json.loads(path.read_text())
+        level, recent = float(state["level"]), [bool(s) for s in state["recent"]]
+        history = [[int(steps), float(at)] for steps, at in state["history"]]
+    except (ValueError, TypeError, KeyError, UnicodeDecodeError) as error:
+        raise RunFolderError(
+            f"{str(path)!r} is not a readable start-curriculum state (truncated or corrupt): "
+            f"{type(error).__name__}: {error}"
+        ) from error
+    return {"level": level, "recent": recent, "history": history}
 
 
 def write_config(run_dir: Path, config: dict) -> None:

@@ -39,7 +39,13 @@ from agents.config import (
     require_known,
     split_hyperparams,
 )
-from agents.curriculum import StartNearGrasp, check_start_curriculum
+from agents.curriculum import (
+    STARTED_NEAR,
+    StartNearGrasp,
+    check_start_curriculum,
+    level_callback,
+    start_settings,
+)
 from agents.demonstrations import check_demonstrations, seed_replay_buffer
 from agents.evaluation import (
     SB3Policy,
@@ -196,9 +202,11 @@ def algorithm_kwargs(hyperparams: Mapping) -> dict:
 def _env_factory(config: dict, monitor_file: str | None, keys):
     def make():
         env = make_env(config["env_id"], config["env_kwargs"])
+        monitored = keys
         if config.get("start_curriculum"):
-            env = StartNearGrasp(env, **config["start_curriculum"])
-        return Monitor(env, filename=monitor_file, info_keywords=keys)
+            env = StartNearGrasp(env, **start_settings(config["start_curriculum"]))
+            monitored = (*keys, STARTED_NEAR)  # which training episodes started near the handle
+        return Monitor(env, filename=monitor_file, info_keywords=monitored)
 
     return make
 
@@ -226,12 +234,16 @@ def vector_keys(space: gym.spaces.Space) -> list[str]:
 # --- callbacks -------------------------------------------------------------------------------
 
 
-def save_checkpoint(model, run_dir: Path) -> int:
+def save_checkpoint(model, run_dir: Path, curriculum=None) -> int:
+    """Save the model, SAC's replay buffer, the normaliser and ``curriculum``'s state (an
+    :class:`AdvanceStartLevel`, or None) under the model's step count."""
     steps = int(model.num_timesteps)
     paths = run_folder.checkpoint_paths(run_dir, steps)
     paths["model"].parent.mkdir(parents=True, exist_ok=True)
     # Every file is written atomically, the model last: a checkpoint exists (for --resume)
     # only once its model zip does, and then its other files are complete.
+    if curriculum is not None:
+        run_folder.write_text_atomically(paths["curriculum"], json.dumps(curriculum.state()))
     if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
         run_folder.save_atomically(model.save_replay_buffer, paths["replay_buffer"])
     normalizer = model.get_vec_normalize_env()
@@ -291,12 +303,12 @@ class RolloutBoundary(BaseCallback):
 
 
 class PeriodicCheckpoint(_Periodic):
-    def __init__(self, run_dir: Path, every: int) -> None:
+    def __init__(self, run_dir: Path, every: int, curriculum=None) -> None:
         super().__init__(every)
-        self.run_dir = run_dir
+        self.run_dir, self.curriculum = run_dir, curriculum
 
     def act(self) -> None:
-        save_checkpoint(self.model, self.run_dir)
+        save_checkpoint(self.model, self.run_dir, self.curriculum)
 
 
 class PeriodicEvaluation(_Periodic):
@@ -435,23 +447,34 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
                 "resumes with an empty replay buffer",
                 file=sys.stderr,
             )
+        curriculum_state = run_folder.read_curriculum_state(paths["curriculum"])
     except run_folder.RunFolderError:
         venv.close()
         raise
     # A new stream: the resumed run must not replay the episodes it has already seen.
     model.set_random_seed(config["seed"] + steps)
-    return _learn(model, config, run_dir, progress_bar, resuming=True)
+    return _learn(model, config, run_dir, progress_bar, resuming=True, curriculum=curriculum_state)
 
 
 def _tensorboard_dir(config: dict, run_dir: Path) -> str | None:
     return str(run_dir / run_folder.TENSORBOARD) if config["tensorboard"] else None
 
 
-def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: bool) -> dict:
+def _learn(
+    model,
+    config: dict,
+    run_dir: Path,
+    progress_bar: bool,
+    resuming: bool,
+    curriculum: dict | None = None,
+) -> dict:
     boundary = RolloutBoundary()
     callbacks = [boundary]
+    level = level_callback(config.get("start_curriculum"), curriculum)
+    if level is not None:
+        callbacks.append(level)
     if config["save_freq"]:
-        callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"]))
+        callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"], level))
     if config["eval_freq"]:
         callbacks.append(PeriodicEvaluation(config, run_dir, config["eval_freq"]))
     started = time.perf_counter()
@@ -465,7 +488,7 @@ def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: boo
         )
     except KeyboardInterrupt:
         model.num_timesteps = boundary.steps
-        steps = save_checkpoint(model, run_dir)
+        steps = save_checkpoint(model, run_dir, level)
         print(
             f"\ninterrupted at {steps} steps; checkpoint saved. "
             f"Continue with: python train.py --resume {run_dir}"
@@ -474,7 +497,7 @@ def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: boo
     except WORKER_GONE as error:
         # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
         model.num_timesteps = boundary.steps
-        steps = save_checkpoint(model, run_dir)
+        steps = save_checkpoint(model, run_dir, level)
         raise RuntimeError(
             f"a {config['env_id']} worker process of the vectorised env died; its traceback "
             "is printed above and ends with the env and the step that failed. A checkpoint "
@@ -494,9 +517,11 @@ def _learn(model, config: dict, run_dir: Path, progress_bar: bool, resuming: boo
     if normalizer is not None:
         run_folder.save_atomically(normalizer.save, run_dir / run_folder.FINAL_NORMALIZER)
     run_folder.save_atomically(model.save, run_dir / run_folder.FINAL_MODEL)
-    save_checkpoint(model, run_dir)  # so a larger --timesteps can continue a finished run
+    save_checkpoint(model, run_dir, level)  # so a larger --timesteps can continue a finished run
     plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
     result = {"timesteps": int(model.num_timesteps), "train_seconds": round(seconds, 1)}
+    if level is not None:
+        result["start_curriculum"] = {"level": level.level, "advances": level.history}
     if config["final_episodes"]:
         policy = load_policy(run_dir, config, best=True)
         comparison = compare_with_baseline(

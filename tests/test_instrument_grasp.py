@@ -226,6 +226,12 @@ def test_tool_start_puts_the_open_jaws_above_and_across_the_handle():
         # The jaws are symmetric: the tool yaw counts modulo a half turn.
         turned = (tool_yaw - handle_yaw + np.pi / 2) % np.pi - np.pi / 2
         assert turned == pytest.approx(yaw_error, abs=0.02)
+        # The same, relative to the tool: the grasp point in its frame, the doubled yaw error.
+        c, s = np.cos(tool_yaw), np.sin(tool_yaw)
+        in_tool_frame = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) @ -np.array(offset)
+        np.testing.assert_allclose(instrument[9:12], in_tool_frame, atol=2e-3)
+        doubled = [np.cos(2 * yaw_error), np.sin(2 * yaw_error)]
+        np.testing.assert_allclose(instrument[12:14], doubled, atol=0.04)
         assert observation["forces"].max() == 0.0  # nothing touched at the start
         assert proprio[17] == pytest.approx(READY_OPENING, abs=2e-3)
     # Jaws around the handle with 2 cm to spare: a 3 N grip holds it within a few steps.
@@ -420,7 +426,7 @@ def test_instrument_sleeps_at_rest_and_the_pads_wake_it():
     observation, _ = env.reset(seed=0, options={"position": [0.5, 0.0], "yaw": 0.0})
     world = env.world
     assert world.asleep() and world.impact_force() == 0.0
-    np.testing.assert_array_equal(observation["instrument"][6:], 0.0)
+    np.testing.assert_array_equal(observation["instrument"][6:9], 0.0)
 
     def step_towards(target, opening):
         delta = (target - world.tcp_position()) / env.max_translation

@@ -389,7 +389,7 @@ def finished_run(tmp_path_factory):
         *("--run-dir", str(run_dir), "--eval-freq", "64", "--eval-episodes", "1"),
         *("--save-freq", "64", "--final-episodes", "0", "--no-progress-bar"),
         *("--env-kwargs", "instruments=[scalpel]", "--hyperparams", "learning_starts=32"),
-        *("batch_size=16", "normalize=true"),
+        *("batch_size=16", "normalize=true", "demonstrations=null"),
     )
     return run_dir
 

@@ -31,7 +31,8 @@ QUICK_HYPERPARAMS = {
     ("ViewPlanning-v0", "ppo"): ["n_steps=32", "batch_size=32", "n_epochs=2"],
     ("ViewPlanning-v0", "sac"): ["buffer_size=2000", "learning_starts=32", "batch_size=16"],
     ("InstrumentGrasp-v0", "ppo"): ["n_steps=64", "batch_size=64", "n_epochs=2"],
-    ("InstrumentGrasp-v0", "sac"): ["learning_starts=64", "batch_size=32"],
+    # Without the YAML's 50 expert episodes and 5,000 cloning steps (minutes).
+    ("InstrumentGrasp-v0", "sac"): ["learning_starts=64", "batch_size=32", "demonstrations=null"],
 }
 
 
@@ -173,7 +174,9 @@ def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_pa
     run_dir = tmp_path / "run"
     demonstrations = "demonstrations={expert: privileged-grasp, episodes: 1, pretrain_steps: 20}"
     args = quick_args("InstrumentGrasp-v0", "sac", run_dir, 128, n_envs=1)
-    run_train(*args, demonstrations)
+    # At the env's own step sizes, where the scripted grasp finishes well inside the time
+    # limit (at the YAML's 1 cm per step it often runs out of time).
+    run_train(*args, demonstrations, "--env-kwargs", "max_translation=0.02", "max_yaw=0.2")
     added = json.loads((run_dir / run_folder.DEMONSTRATIONS).read_text())
     assert added == {
         "expert": "privileged-grasp",
@@ -357,3 +360,19 @@ def test_the_shipped_view_planning_policy_beats_the_four_view_baseline():
         "ViewPlanning-v0", load_policy(shipped), config["env_kwargs"], 20, reference=False
     )
     assert result["policy"]["mean"] > result["baseline"]["mean"] + 0.03
+
+
+@pytest.mark.slow
+def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
+    from agents.evaluation import run_episodes
+
+    shipped = REPO / "policies" / "InstrumentGrasp-v0" / "sac"
+    config = run_folder.read_config(shipped)
+    env = make_env("InstrumentGrasp-v0", config["env_kwargs"])
+    keys = ("is_success", "hard_limit_exceeded")
+    episodes = run_episodes(env, load_policy(shipped), range(2000, 2020), keys)
+    env.close()
+    successes = sum(episode["is_success"] for episode in episodes)
+    # 10 of these 20 when shipped (a policy loaded without its normaliser grasps none); the
+    # margin allows for other machines' floating point.
+    assert successes >= 6

@@ -202,8 +202,12 @@ class InstrumentGraspEnv(gym.Env):
                                 pad opening and commanded opening (2, m)
     ``forces``      (2,)        left and right fingertip normal force (N): the pads' touch
                                 sensors, i.e. every contact on a pad (instrument, tray, ...)
-    ``instrument``  (9,)        ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
-                                (3, m), handle axis (3), instrument linear velocity (3, m/s)
+    ``instrument``  (14,)       ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
+                                (3, m), handle axis (3), instrument linear velocity (3, m/s),
+                                grasp point relative to the tool centre in the tool's frame
+                                (3, m; the jaws close along its y axis), cos and sin of
+                                twice the tool's yaw from across the handle (2; 1 and 0 when
+                                the jaws are across it, either way round)
     ``depth``       (1, H, W)   ``"depth"`` and ``"rgbd"``: wrist z-depth, uint8 levels (see
                                 :meth:`decode_depth`: 0 = no return, 1-255 span 0.1-0.6 m)
     ``rgb``         (3, H, W)   ``"rgbd"`` only: wrist colour image, uint8, channel-first
@@ -260,7 +264,9 @@ class InstrumentGraspEnv(gym.Env):
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
     ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, then
     ``arm_stiffness`` and the ``tool_start``, ``tool_yaw_error`` and ``jaw_clearance`` reset
-    options, added later (the defaults are unchanged).
+    options, added later (the defaults are unchanged); the ``instrument`` observation grew from
+    9 to 14 entries (the grasp point and the handle's yaw relative to the tool) before any
+    grasp policy was published.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -384,7 +390,7 @@ class InstrumentGraspEnv(gym.Env):
             "forces": spaces.Box(0.0, np.inf, (2,), dtype=np.float32),
         }
         if obs_mode == "state":
-            obs["instrument"] = spaces.Box(-np.inf, np.inf, (9,), dtype=np.float32)
+            obs["instrument"] = spaces.Box(-np.inf, np.inf, (14,), dtype=np.float32)
         else:
             obs["depth"] = spaces.Box(0, 255, (1, resolution, resolution), dtype=np.uint8)
         if obs_mode == "rgbd":
@@ -659,8 +665,21 @@ class InstrumentGraspEnv(gym.Env):
             "forces": world.gripper.fingertip_forces().astype(np.float32),
         }
         if self.obs_mode == "state":
+            grasp_point, axis = world.grasp_point(), world.grasp_axis()
+            # The same geometry relative to the tool, as a controller needs it: millimetre
+            # offsets are small differences of the absolute positions, which a network
+            # fed normalised absolute inputs resolves poorly.
+            dx, dy, dz = grasp_point - tcp
+            cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+            misalignment = 2.0 * (yaw - math.atan2(axis[1], axis[0]))  # jaws: half-turn symmetric
             obs["instrument"] = np.concatenate(
-                [world.grasp_point(), world.grasp_axis(), world.instrument_velocity()]
+                [
+                    grasp_point,
+                    axis,
+                    world.instrument_velocity(),
+                    [cos_yaw * dx + sin_yaw * dy, -sin_yaw * dx + cos_yaw * dy, dz],
+                    [math.cos(misalignment), math.sin(misalignment)],
+                ]
             ).astype(np.float32)
         else:
             depth = world.camera(self).render(world.data)
