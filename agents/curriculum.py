@@ -156,17 +156,18 @@ class AdvanceStartLevel(BaseCallback):
     the last ``window`` episodes that started near the handle reaches ``advance_at``.
 
     :meth:`state` / ``state=`` carry the level, the current window and the history of
-    advances (steps, level) across checkpoints."""
+    advances (steps, level) across checkpoints (``state`` as :meth:`state` gave it, or as
+    ``run_folder.read_curriculum_state`` checked it)."""
 
     def __init__(
         self, advance_at: float, window: int, level_step: float, state: Mapping | None = None
     ) -> None:
         super().__init__()
         self.advance_at, self.level_step = advance_at, level_step
-        state = state or {}
-        self.level = float(state.get("level", 0.0))
-        self.recent = deque((bool(s) for s in state.get("recent", ())), maxlen=window)
-        self.history = [list(entry) for entry in state.get("history", ())]
+        state = state or {"level": 0.0, "recent": [], "history": []}
+        self.level = state["level"]
+        self.recent = deque(state["recent"], maxlen=window)
+        self.history = [list(entry) for entry in state["history"]]
 
     def state(self) -> dict:
         return {"level": self.level, "recent": list(self.recent), "history": self.history}

@@ -671,7 +671,7 @@ class InstrumentGraspEnv(gym.Env):
             # fed normalised absolute inputs resolves poorly.
             dx, dy, dz = grasp_point - tcp
             cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
-            misalignment = 2.0 * (yaw - math.atan2(axis[1], axis[0]))  # jaws: half-turn symmetric
+            misalignment = 2.0 * (yaw - world.handle_yaw())  # the jaws: half-turn symmetric
             obs["instrument"] = np.concatenate(
                 [
                     grasp_point,
@@ -802,10 +802,7 @@ class _World:
         tcp, tool_yaw = READY_TCP, 0.0
         if tool_start is not None:
             mujoco.mj_kinematics(model, data)
-            axis = self.grasp_axis()
-            # The jaws close along the tool's y axis: across the handle at the handle's yaw
-            # (either half turn will do; this one keeps the wrist nearest its ready angle).
-            tool_yaw = (math.atan(axis[1] / axis[0]) if axis[0] else math.pi / 2) + tool_yaw_error
+            tool_yaw = self.handle_yaw() + tool_yaw_error
             tcp = np.clip(
                 self.grasp_point() + tool_start, self.workspace_lower, self.workspace_upper
             )
@@ -871,6 +868,13 @@ class _World:
 
     def grasp_axis(self) -> np.ndarray:
         return self.data.site_xmat[self._grasp_site].reshape(3, 3)[:, 0].copy()
+
+    def handle_yaw(self) -> float:
+        """The tool yaw (rad, within +-pi/2) that puts the jaws across the handle: they close
+        along the tool's y axis (either half turn will do; this one keeps the wrist nearest
+        its ready angle)."""
+        axis = self.grasp_axis()
+        return math.atan(axis[1] / axis[0]) if axis[0] else math.pi / 2
 
     def instrument_velocity(self) -> np.ndarray:
         return self.data.qvel[self._joint_dof : self._joint_dof + 3].copy()
