@@ -12,9 +12,10 @@ camera intrinsics and the arm's kinematic model: what a real robot knows from ca
   handle, descends (stopping early if a pad touches anything), closes in small steps until
   both pads press with ``grip_force``, lifts and holds. It reads no privileged state.
 - :class:`Squeeze`: the same, but it closes the gripper fully: the force term must bite.
-- :class:`PrivilegedGrasp`: the same state machine on ``obs_mode="state"``, reading the handle
-  from the privileged ``instrument`` observation instead of the images: the expert whose
-  episodes seed SAC's replay buffer (see ``agents/demonstrations.py``).
+- :class:`PrivilegedGrasp`: the same state machine reading the handle from the simulator
+  instead of the images (the values of the privileged ``instrument`` observation), so it runs
+  in every ``obs_mode``: the expert whose episodes seed SAC's replay buffer (see
+  ``agents/demonstrations.py``).
 - :class:`RandomGrasp`: uniform samples of the action space (seeded).
 """
 
@@ -342,18 +343,22 @@ class Squeeze(ScriptedGrasp):
 
 
 class PrivilegedGrasp(ScriptedGrasp):
-    """ScriptedGrasp that knows where the handle is: the grasp point and axis from the
-    privileged ``instrument`` observation, the surface under it from the workcell's tray."""
+    """ScriptedGrasp that knows where the handle is: the grasp point and axis read from the
+    simulator, the surface under it from the workcell's tray. It reads them as float32, the
+    values of the ``state`` observation's ``instrument`` entry, so it acts the same in every
+    ``obs_mode`` (a privileged teacher for a depth-only student)."""
 
-    ENV_KWARGS = {"obs_mode": "state", "controller": "ee_delta"}
+    ENV_KWARGS = {"controller": "ee_delta"}
 
     def _detect(self, observation) -> HandleDetection:
-        instrument = np.asarray(observation["instrument"], dtype=np.float64)
-        axis = np.array([instrument[3], instrument[4], 0.0])
+        world = self.env.world
+        point = world.grasp_point().astype(np.float32).astype(np.float64)
+        axis = world.grasp_axis().astype(np.float32).astype(np.float64)
+        axis[2] = 0.0
         return HandleDetection(
-            point=instrument[:3].copy(),
+            point=point,
             axis=axis / max(np.linalg.norm(axis), 1e-9),
-            floor_z=self.env.world.tray.floor_z,
+            floor_z=world.tray.floor_z,
             pixels=0,
         )
 

@@ -4,6 +4,7 @@ with the training episodes' returns behind them) and the evaluation report's fig
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
@@ -14,12 +15,17 @@ SMOOTHING_EPISODES = 100
 
 
 def training_returns(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(cumulative env steps, episode return) of every training episode, in time order."""
+    """(cumulative env steps, episode return) of every training episode, in time order.
+
+    A monitor file's ``t`` counts from its own start (its JSON header's ``t_start``), and a
+    resumed run writes new files: episodes are ordered by ``t_start + t``."""
     rows = []
     for path in sorted((Path(run_dir) / run_folder.MONITOR).glob("*.monitor.csv")):
         with open(path, newline="") as handle:
-            handle.readline()  # the Monitor's JSON header
-            rows += [(float(r["t"]), float(r["r"]), int(r["l"])) for r in csv.DictReader(handle)]
+            start = float(json.loads(handle.readline().lstrip("#"))["t_start"])
+            rows += [
+                (start + float(r["t"]), float(r["r"]), int(r["l"])) for r in csv.DictReader(handle)
+            ]
     if not rows:
         return np.zeros(0), np.zeros(0)
     rows.sort()
@@ -48,6 +54,8 @@ def _save(figure, path: Path) -> Path:
 def plot_learning_curve(run_dir: Path, metric_label: str, episodes: int) -> Path | None:
     """``episodes``: how many episodes each evaluation averaged."""
     plt = _pyplot()
+    from matplotlib.ticker import EngFormatter
+
     run_dir = Path(run_dir)
     evaluations = run_folder.read_evaluations(run_dir)
     steps, returns = training_returns(run_dir)
@@ -74,6 +82,7 @@ def plot_learning_curve(run_dir: Path, metric_label: str, episodes: int) -> Path
     ax_metric.set(xlabel="environment steps", ylabel=f"evaluation {metric_label}")
     for axis in (ax_return, ax_metric):
         axis.grid(alpha=0.3)
+        axis.xaxis.set_major_formatter(EngFormatter(sep=""))  # 200k, not 200000 (they overlap)
     return _save(figure, run_dir / run_folder.LEARNING_CURVE)
 
 

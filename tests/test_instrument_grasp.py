@@ -123,15 +123,32 @@ def test_scripted_grasp_lifts_gently_and_squeeze_breaks_the_limit():
     env.close()
 
 
-def test_privileged_grasp_lifts_gently_from_state_and_refuses_images():
+def test_privileged_grasp_lifts_gently_and_refuses_joint_control():
     env = gym.make("InstrumentGrasp-v0", instrument_set="held_out")
     for seed in (0, 11):
         info, infos = run_policy(env, PrivilegedGrasp(env), seed)
         assert info["is_success"], info
         assert info["peak_force"] <= DEFAULT_FORCE_LIMIT and not info["hard_limit_exceeded"]
     env.close()
-    with pytest.raises(ValueError, match="obs_mode"):
-        PrivilegedGrasp(gym.make("InstrumentGrasp-v0", obs_mode="rgbd"))
+    with pytest.raises(ValueError, match="controller"):
+        PrivilegedGrasp(gym.make("InstrumentGrasp-v0", controller="joint_delta"))
+
+
+def test_privileged_grasp_acts_the_same_when_the_observation_is_depth():
+    """It reads the simulator, not the observation: a teacher for a depth-only student."""
+    actions = {}
+    for obs_mode in ("state", "depth"):
+        env = gym.make("InstrumentGrasp-v0", obs_mode=obs_mode, resolution=32)
+        expert, taken = PrivilegedGrasp(env), []
+        observation, _ = env.reset(seed=4)
+        for _ in range(60):
+            action, _ = expert.predict(observation)
+            taken.append(action)
+            observation, *_ = env.step(action)
+        actions[obs_mode] = np.array(taken)
+        env.close()
+    assert np.ptp(actions["state"][:, :3], axis=0).max() > 0.5  # it moved
+    np.testing.assert_array_equal(actions["depth"], actions["state"])
 
 
 def test_success_needs_the_hold_time_and_terminate_on_success_pays_the_rest():

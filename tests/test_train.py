@@ -372,6 +372,6 @@ def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
     episodes = run_episodes(env, load_policy(shipped), range(2000, 2020), ("is_success",))
     env.close()
     successes = sum(episode["is_success"] for episode in episodes)
-    # 10 of these 20 when shipped (a policy loaded without its normaliser grasps none); the
+    # 9 of these 20 when shipped (a policy loaded without its normaliser grasps none); the
     # margin allows for other machines' floating point.
     assert successes >= 6
