@@ -22,10 +22,15 @@ def training_returns(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     rows = []
     for path in sorted((Path(run_dir) / run_folder.MONITOR).glob("*.monitor.csv")):
         with open(path, newline="") as handle:
-            start = float(json.loads(handle.readline().lstrip("#"))["t_start"])
-            rows += [
-                (start + float(r["t"]), float(r["r"]), int(r["l"])) for r in csv.DictReader(handle)
-            ]
+            try:
+                start = float(json.loads(handle.readline().lstrip("#"))["t_start"])
+            except (ValueError, KeyError, TypeError):
+                continue  # empty or cut short by a crash: nothing to place in time
+            for row in csv.DictReader(handle):
+                try:
+                    rows.append((start + float(row["t"]), float(row["r"]), int(row["l"])))
+                except (ValueError, TypeError):
+                    continue  # a last line cut short by a crash
     if not rows:
         return np.zeros(0), np.zeros(0)
     rows.sort()

@@ -34,6 +34,10 @@ def test_a_resumed_runs_episodes_follow_the_first_segments(tmp_path):
     monitor.mkdir()
     _write_monitor(monitor / "b", episodes=2, length=4, pause=0.3)
     _write_monitor(monitor / "a", episodes=1, length=2)
+    # A crash can leave a file empty, or a last line cut short: both are skipped.
+    (monitor / "c.monitor.csv").write_text("")
+    with open(monitor / "b.monitor.csv", "a") as handle:
+        handle.write("1.5,4")
     steps, returns = training_returns(tmp_path)
     np.testing.assert_array_equal(steps, [4, 8, 10])
     assert returns.shape == (3,)
