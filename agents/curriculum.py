@@ -195,17 +195,18 @@ class AdvanceStartLevel(BaseCallback):
 
 
 def start_settings(settings: Mapping) -> dict:
-    """The :class:`StartNearGrasp` arguments of a ``start_curriculum`` entry."""
-    return {key: settings.get(key, default) for key, default in START_DEFAULTS.items()}
+    """The :class:`StartNearGrasp` arguments of a checked ``start_curriculum`` entry."""
+    return {key: settings[key] for key in START_DEFAULTS}
 
 
 def level_callback(settings: Mapping | None, state: Mapping | None) -> AdvanceStartLevel | None:
-    """The callback that advances the start level, or None where the starts stay put."""
-    if not settings or settings.get("advance_at") is None:
+    """The callback that advances the start level of a checked ``start_curriculum`` entry,
+    or None where the starts stay put."""
+    if not settings or settings["advance_at"] is None:
         return None
-    window = settings.get("window", ADVANCE_DEFAULTS["window"])
-    level_step = settings.get("level_step", ADVANCE_DEFAULTS["level_step"])
-    return AdvanceStartLevel(settings["advance_at"], window, level_step, state)
+    return AdvanceStartLevel(
+        settings["advance_at"], settings["window"], settings["level_step"], state
+    )
 
 
 def check_start_curriculum(env_id: str, settings) -> dict | None:

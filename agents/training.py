@@ -418,6 +418,11 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
         if value is not None:
             config[key] = value
     config["device"] = check_device(config.get("device", "auto"))
+    # Checked again: a hand-edited config.yml is caught, and an older run folder's entry gets
+    # the settings added since with their defaults.
+    config["start_curriculum"] = check_start_curriculum(
+        config["env_id"], config.get("start_curriculum")
+    )
     if steps >= config["n_timesteps"]:
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {config['n_timesteps']} steps; "

@@ -149,6 +149,13 @@ def option_jaw_clearance(key, value) -> float:
     return float(value)
 
 
+def jaws_across(handle_axis: np.ndarray) -> float:
+    """The tool yaw (rad, within +-pi/2) that puts the jaws across a handle along
+    ``handle_axis``: they close along the tool's y axis (either half turn will do; this one
+    keeps the wrist nearest its ready angle)."""
+    return math.atan(handle_axis[1] / handle_axis[0]) if handle_axis[0] else math.pi / 2
+
+
 def tool_down(yaw: float) -> np.ndarray:
     """Rotation of the tool frame pointing straight down, turned by ``yaw`` about world z."""
     c, s = math.cos(yaw), math.sin(yaw)
@@ -671,7 +678,7 @@ class InstrumentGraspEnv(gym.Env):
             # fed normalised absolute inputs resolves poorly.
             dx, dy, dz = grasp_point - tcp
             cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
-            misalignment = 2.0 * (yaw - world.handle_yaw())  # the jaws: half-turn symmetric
+            misalignment = 2.0 * (yaw - jaws_across(axis))  # the jaws: half-turn symmetric
             obs["instrument"] = np.concatenate(
                 [
                     grasp_point,
@@ -802,7 +809,7 @@ class _World:
         tcp, tool_yaw = READY_TCP, 0.0
         if tool_start is not None:
             mujoco.mj_kinematics(model, data)
-            tool_yaw = self.handle_yaw() + tool_yaw_error
+            tool_yaw = jaws_across(self.grasp_axis()) + tool_yaw_error
             tcp = np.clip(
                 self.grasp_point() + tool_start, self.workspace_lower, self.workspace_upper
             )
@@ -868,13 +875,6 @@ class _World:
 
     def grasp_axis(self) -> np.ndarray:
         return self.data.site_xmat[self._grasp_site].reshape(3, 3)[:, 0].copy()
-
-    def handle_yaw(self) -> float:
-        """The tool yaw (rad, within +-pi/2) that puts the jaws across the handle: they close
-        along the tool's y axis (either half turn will do; this one keeps the wrist nearest
-        its ready angle)."""
-        axis = self.grasp_axis()
-        return math.atan(axis[1] / axis[0]) if axis[0] else math.pi / 2
 
     def instrument_velocity(self) -> np.ndarray:
         return self.data.qvel[self._joint_dof : self._joint_dof + 3].copy()
