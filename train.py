@@ -5,6 +5,7 @@
     python train.py --algo ppo --hyperparams learning_rate=1e-4 policy_kwargs.net_arch=[64,64]
     python train.py --env-kwargs view_budget=6 --eval-freq 2000
     python train.py --resume runs/ViewPlanning-v0/ppo_seed0_20261121-101500 [-n 50000]
+    python train.py --env InstrumentGrasp-v0 --algo sac --init-from policies/InstrumentGrasp-v0/sac
 
 Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id) or --config; each
 run writes a folder (see agents/run_folder.py) with its resolved config, models, checkpoints,
@@ -27,7 +28,7 @@ from agents.run_folder import RunFolderError  # noqa: E402
 #: Flags that define a run; a resumed run keeps the values in its config.yml.
 RUN_DEFINING_FLAGS = (
     "env", "algo", "seed", "n_envs", "vec_env", "config", "hyperparams", "env_kwargs",
-    "eval_freq", "eval_episodes", "save_freq", "run_dir", "tensorboard",
+    "eval_freq", "eval_episodes", "save_freq", "run_dir", "tensorboard", "init_from",
 )  # fmt: skip
 
 
@@ -45,6 +46,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--hyperparams", nargs="+", metavar="KEY=VALUE", help="override hyper-parameters"
     )
     run.add_argument("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="gym.make kwargs")
+    run.add_argument(
+        "--init-from",
+        metavar="RUN_DIR",
+        help="start from a trained run's best policy and normaliser (same env and algorithm); "
+        "everything else is this run's",
+    )
     run.add_argument("--device", help="torch device: auto, cpu, cuda, cuda:N (default: auto)")
     run.add_argument("--torch-threads", type=int, help="torch CPU threads (default: 1)")
     logs = parser.add_argument_group("evaluation, checkpoints and logs")
@@ -120,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
                 device=args.device,
                 tensorboard=args.tensorboard,
                 torch_threads=args.torch_threads,
+                init_from=args.init_from,
             )
         )
         run_dir = args.run_dir or training.new_run_dir(config, args.log_folder)

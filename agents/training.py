@@ -8,6 +8,7 @@ periodic evaluation and checkpoints, resume, and finish with a comparison to the
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import json
 import sys
@@ -100,9 +101,11 @@ def resolve_config(
     device: str = "auto",
     tensorboard: bool = False,
     torch_threads: int = DEFAULT_TORCH_THREADS,
+    init_from: str | None = None,
 ) -> dict:
     """Everything a run needs, checked: the hyper-parameter file's entry for ``env_id`` with
-    ``hyperparams`` and ``env_kwargs`` merged over it and the explicit arguments on top."""
+    ``hyperparams`` and ``env_kwargs`` merged over it and the explicit arguments on top.
+    ``init_from`` names a trained run whose policy the new run starts from."""
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
@@ -135,8 +138,43 @@ def resolve_config(
         "tensorboard": bool(tensorboard),
         "torch_threads": int_at_least("torch-threads", torch_threads),
     }
+    config["init_from"] = (
+        check_init_from(init_from, env_id, algo, config["normalize"]) if init_from else None
+    )
     policy_kwargs(config["hyperparams"].get("policy_kwargs"))  # fails early on bad names
     return config
+
+
+def check_init_from(source: str, env_id: str, algo: str, normalize: bool) -> dict:
+    """The trained run a new run starts from (rl-baselines3-zoo's ``--trained-agent``): its
+    best model (else its final one) and normaliser, for the same env, algorithm and
+    normalisation. Recorded in the new run's config with the model's SHA-256."""
+    run_dir = Path(source)
+    try:
+        trained = run_folder.read_config(run_dir)
+    except run_folder.RunFolderError as error:
+        raise ConfigError(f"--init-from: {error}") from error
+    if (trained["env_id"], trained["algo"]) != (env_id, algo):
+        raise ConfigError(
+            f"--init-from {source!r} is a {trained['algo']} run on {trained['env_id']}; "
+            f"this run is {algo} on {env_id}"
+        )
+    if bool(trained.get("normalize")) != normalize:
+        raise ConfigError(
+            f"--init-from {source!r} has normalize: {bool(trained.get('normalize'))} and this "
+            f"run normalize: {normalize}; its weights expect the other inputs"
+        )
+    model_path, normalizer_path = policy_files(run_dir, best=True)
+    if not model_path.is_file():
+        raise ConfigError(f"--init-from {source!r} has no {model_path.name}")
+    if normalize and not normalizer_path.is_file():
+        raise ConfigError(f"--init-from {source!r} has no {normalizer_path.name}")
+    return {
+        "run": str(run_dir),
+        "model": str(model_path),
+        "normalizer": str(normalizer_path) if normalize else None,
+        "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
+    }
 
 
 def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
@@ -371,11 +409,20 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             f"{str(run_dir)!r} already holds a run; continue it with --resume {run_dir} "
             "or choose another --run-dir"
         )
+    init_from = config.get("init_from")
+    if init_from:  # before the folder is made: a refused start leaves nothing behind
+        check_trained_model(init_from, config["env_id"], config["env_kwargs"])
     run_dir.mkdir(parents=True, exist_ok=True)
     run_folder.write_config(run_dir, config)
     torch.set_num_threads(config["torch_threads"])
     venv = build_vec_env(config, run_dir)
-    if config["normalize"]:
+    if config["normalize"] and init_from:
+        # The trained weights expect the trained run's scaling; it keeps adapting from there.
+        normalizer = run_folder.load_normalizer(init_from["normalizer"])
+        normalizer.set_venv(venv)
+        normalizer.training = True
+        venv = normalizer
+    elif config["normalize"]:
         venv = VecNormalize(
             venv,
             norm_obs=True,
@@ -391,6 +438,8 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         verbose=0,
         **algorithm_kwargs(config["hyperparams"]),
     )
+    if init_from:
+        load_trained_weights(model, init_from["model"])
     if config.get("demonstrations"):
         added = seed_replay_buffer(model, config)
         run_folder.write_text_atomically(
@@ -401,6 +450,53 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
         )
     return _learn(model, config, run_dir, progress_bar, resuming=False)
+
+
+def check_trained_model(init_from: dict, env_id: str, env_kwargs: Mapping) -> None:
+    """A ConfigError or RunFolderError unless the ``init_from`` model (and normaliser) can be
+    read and the model observes and acts in the spaces of ``env_id`` with ``env_kwargs``
+    (an env kwarg such as ``obs_mode`` changes them)."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    path = init_from["model"]
+    try:
+        saved, _, _ = load_from_zip_file(path, device="cpu", load_data=True)
+    except run_folder.UNREADABLE as error:
+        raise run_folder.RunFolderError(
+            f"--init-from model {path!r} is not readable: {type(error).__name__}: {error}"
+        ) from error
+    if init_from.get("normalizer"):
+        run_folder.load_normalizer(init_from["normalizer"])
+    env = make_env(env_id, env_kwargs)
+    try:
+        for name in ("observation_space", "action_space"):
+            if saved.get(name) != getattr(env, name):
+                raise ConfigError(
+                    f"--init-from model {path!r} has the {name} {saved.get(name)}; this run's "
+                    f"env has {getattr(env, name)} (different env kwargs?)"
+                )
+    finally:
+        env.close()
+
+
+def load_trained_weights(model, path: str) -> None:
+    """Every network, optimiser and (SAC) entropy coefficient of a saved model of the same
+    algorithm, into ``model``; its hyper-parameters stay the new run's."""
+    from stable_baselines3.common.save_util import load_from_zip_file, recursive_setattr
+
+    _, state_dicts, variables = load_from_zip_file(path, device=model.device)
+    try:
+        model.set_parameters(state_dicts, exact_match=True, device=model.device)
+    except (RuntimeError, ValueError) as error:
+        raise ConfigError(
+            f"--init-from model {path!r} does not fit this run's networks (different "
+            f"policy_kwargs?): {error}"
+        ) from error
+    # set_parameters leaves out bare tensors such as SAC's log_ent_coef: without it a tuned
+    # policy would restart at entropy coefficient 1 and unlearn its precision.
+    for name, tensor in (variables or {}).items():
+        if tensor is not None:
+            recursive_setattr(model, f"{name}.data", tensor.data)
 
 
 def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = False, **overrides):
@@ -543,15 +639,15 @@ def load_policy(run_dir: Path, config: dict | None = None, best: bool = True) ->
     Falls back to the final model when no evaluation ran."""
     run_dir = Path(run_dir)
     config = config or run_folder.read_config(run_dir)
-    model_path, normalizer_path = (
-        run_dir / run_folder.FINAL_MODEL,
-        run_dir / run_folder.FINAL_NORMALIZER,
-    )
-    if best and (run_dir / run_folder.BEST_MODEL).is_file():
-        model_path, normalizer_path = (
-            run_dir / run_folder.BEST_MODEL,
-            run_dir / run_folder.BEST_NORMALIZER,
-        )
+    model_path, normalizer_path = policy_files(run_dir, best)
     if not model_path.is_file():
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no {model_path.name}")
     return SB3Policy.load(ALGO_CLASSES[config["algo"]], model_path, normalizer_path)
+
+
+def policy_files(run_dir: Path, best: bool = True) -> tuple[Path, Path]:
+    """A run's model zip and normaliser: its best ones when ``best`` and it has them, else
+    its final ones (which may not exist)."""
+    if best and (run_dir / run_folder.BEST_MODEL).is_file():
+        return run_dir / run_folder.BEST_MODEL, run_dir / run_folder.BEST_NORMALIZER
+    return run_dir / run_folder.FINAL_MODEL, run_dir / run_folder.FINAL_NORMALIZER

@@ -95,6 +95,8 @@ def test_a_python_expression_stays_a_string():
         (["--config", "no/such/file.yml"], "does not exist"),
         (["--resume", "no/such/run"], "does not exist"),
         (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
+        (["--resume", "runs/x", "--init-from", "runs/y"], "--init-from cannot be changed"),
+        (["--init-from", "no/such/run"], "--init-from: run folder 'no/such/run' does not exist"),
         (["--device", "tpu"], "not a torch device"),
         (["--timesteps", "many"], "invalid int value"),
         (
@@ -241,6 +243,48 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
     assert final.replay_buffer.size() == 256  # the first 128 transitions were kept
     timesteps = [row["timesteps"] for row in run_folder.read_evaluations(run_dir)]
     assert timesteps == sorted(timesteps) and timesteps[-1] == 256 and len(timesteps) >= 3
+
+
+@pytest.mark.slow
+def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, capsys):
+    import hashlib
+
+    from stable_baselines3 import SAC
+
+    source, tuned = tmp_path / "source", tmp_path / "tuned"
+    run_train(*quick_args("InstrumentGrasp-v0", "sac", source, 128, n_envs=1))
+    # 32 steps before learning starts: the new run's weights are still the loaded ones.
+    args = quick_args("InstrumentGrasp-v0", "sac", tuned, 32, n_envs=1)
+    run_train(*args, "learning_starts=64", "--init-from", str(source), "--final-episodes", "0")
+
+    trained = SAC.load(source / run_folder.BEST_MODEL)
+    started = SAC.load(tuned / run_folder.FINAL_MODEL)
+    for name, value in trained.policy.state_dict().items():
+        assert np.array_equal(value, started.policy.state_dict()[name]), name
+    assert started.log_ent_coef.item() == pytest.approx(trained.log_ent_coef.item())
+    assert started.num_timesteps == 32  # a new run: its own step counter
+    # The normaliser carries on from the trained run's statistics.
+    before = run_folder.load_normalizer(source / run_folder.BEST_NORMALIZER)
+    after = run_folder.load_normalizer(tuned / run_folder.FINAL_NORMALIZER)
+    # (the first reset's observation, then one per step)
+    assert after.obs_rms["forces"].count == pytest.approx(before.obs_rms["forces"].count + 33)
+    recorded = yaml.safe_load((tuned / run_folder.CONFIG).read_text())["init_from"]
+    assert recorded["run"] == str(source)
+    best = (source / run_folder.BEST_MODEL).read_bytes()
+    assert recorded["sha256"] == hashlib.sha256(best).hexdigest()
+
+    # Another algorithm, or another observation space, is refused with the reason.
+    with pytest.raises(SystemExit):
+        train.main(["--env", "InstrumentGrasp-v0", "--algo", "ppo", "--init-from", str(source)])
+    assert "is a sac run on InstrumentGrasp-v0; this run is ppo" in capsys.readouterr().err
+    result = run_train(
+        *quick_args("InstrumentGrasp-v0", "sac", tmp_path / "depth", 32, n_envs=1),
+        *("--init-from", str(source), "--env-kwargs", "obs_mode=depth"),
+        check=False,
+    )
+    assert result.returncode == 2
+    assert "has the observation_space" in result.stderr and "different env kwargs" in result.stderr
+    assert not (tmp_path / "depth").exists()  # so the corrected command may reuse --run-dir
 
 
 @pytest.mark.slow
