@@ -14,12 +14,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gymnasium import spaces
-
 from agents import run_folder
 from agents.config import ConfigError, closest, require_known
 from agents.evaluation import SB3Policy, make_env, task_for
 from agents.grasp_baselines import GRASP_BASELINES
+from agents.spaces import describe_space, same_space
 from agents.training import ALGO_CLASSES, check_env_kwargs
 from agents.view_baselines import BASELINES as VIEW_BASELINES
 
@@ -155,11 +154,11 @@ def check_fits(contestant: Contestant, env) -> None:
         ("observation", env.observation_space, model.observation_space),
         ("action", env.action_space, model.action_space),
     ):
-        if not _same_space(expected, actual):
+        if not same_space(expected, actual):
             raise ContestantError(
                 f"{contestant.source!r} does not fit {contestant.env_id} with env kwargs "
-                f"{contestant.env_kwargs or '{}'}: its {what} space is {_describe(actual)}, "
-                f"the environment's is {_describe(expected)}"
+                f"{contestant.env_kwargs or '{}'}: its {what} space is {describe_space(actual)}, "
+                f"the environment's is {describe_space(expected)}"
             )
 
 
@@ -252,24 +251,6 @@ def _load(algo: str, model_path: Path, normalizer_path: Path | None) -> SB3Polic
         return SB3Policy.load(ALGO_CLASSES[algo], model_path, normalizer_path)
     except run_folder.RunFolderError as error:
         raise ContestantError(str(error)) from error
-
-
-def _same_space(expected: spaces.Space, actual: spaces.Space) -> bool:
-    if isinstance(expected, spaces.Dict) and isinstance(actual, spaces.Dict):
-        return set(expected.spaces) == set(actual.spaces) and all(
-            _same_space(expected[key], actual[key]) for key in expected.spaces
-        )
-    if isinstance(expected, spaces.Box) and isinstance(actual, spaces.Box):
-        return expected.shape == actual.shape and expected.dtype == actual.dtype
-    return expected == actual
-
-
-def _describe(space: spaces.Space) -> str:
-    if isinstance(space, spaces.Dict):
-        return "{" + ", ".join(f"{k}: {_describe(v)}" for k, v in space.spaces.items()) + "}"
-    if isinstance(space, spaces.Box):
-        return f"Box{space.shape} {space.dtype}"
-    return repr(space)
 
 
 def make_checked_env(contestant: Contestant, **make_kwargs):

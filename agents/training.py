@@ -15,6 +15,7 @@ import sys
 import time
 from abc import abstractmethod
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import gymnasium as gym
@@ -58,6 +59,7 @@ from agents.evaluation import (
 )
 from agents.plotting import plot_learning_curve
 from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS
+from agents.spaces import describe_space, same_space
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}
 VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
@@ -409,19 +411,21 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             f"{str(run_dir)!r} already holds a run; continue it with --resume {run_dir} "
             "or choose another --run-dir"
         )
-    init_from = config.get("init_from")
-    if init_from:  # before the folder is made: a refused start leaves nothing behind
-        check_trained_model(init_from, config["env_id"], config["env_kwargs"])
+    # Loaded before the folder is made: a refused start leaves nothing behind.
+    trained = (
+        load_trained_start(config["init_from"], config["env_id"], config["env_kwargs"])
+        if config.get("init_from")
+        else None
+    )
     run_dir.mkdir(parents=True, exist_ok=True)
     run_folder.write_config(run_dir, config)
     torch.set_num_threads(config["torch_threads"])
     venv = build_vec_env(config, run_dir)
-    if config["normalize"] and init_from:
+    if trained is not None and trained.normalizer is not None:
         # The trained weights expect the trained run's scaling; it keeps adapting from there.
-        normalizer = run_folder.load_normalizer(init_from["normalizer"])
-        normalizer.set_venv(venv)
-        normalizer.training = True
-        venv = normalizer
+        trained.normalizer.set_venv(venv)
+        trained.normalizer.training = True
+        venv = trained.normalizer
     elif config["normalize"]:
         venv = VecNormalize(
             venv,
@@ -438,8 +442,8 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         verbose=0,
         **algorithm_kwargs(config["hyperparams"]),
     )
-    if init_from:
-        load_trained_weights(model, init_from["model"])
+    if trained is not None:
+        load_trained_weights(model, trained)
     if config.get("demonstrations"):
         added = seed_replay_buffer(model, config)
         run_folder.write_text_atomically(
@@ -452,51 +456,67 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
     return _learn(model, config, run_dir, progress_bar, resuming=False)
 
 
-def check_trained_model(init_from: dict, env_id: str, env_kwargs: Mapping) -> None:
-    """A ConfigError or RunFolderError unless the ``init_from`` model (and normaliser) can be
-    read and the model observes and acts in the spaces of ``env_id`` with ``env_kwargs``
-    (an env kwarg such as ``obs_mode`` changes them)."""
+@dataclass(frozen=True)
+class TrainedStart:
+    """What ``--init-from`` loads, once: the saved model's state dicts and bare tensors, and
+    its normaliser (None without normalisation)."""
+
+    model_path: str
+    state_dicts: dict
+    variables: dict
+    normalizer: VecNormalize | None
+
+
+def load_trained_start(init_from: dict, env_id: str, env_kwargs: Mapping) -> TrainedStart:
+    """The ``init_from`` model and normaliser, or a ConfigError / RunFolderError when they
+    cannot be read or the model does not observe and act in the spaces of ``env_id`` with
+    ``env_kwargs`` (an env kwarg such as ``obs_mode`` changes them)."""
     from stable_baselines3.common.save_util import load_from_zip_file
 
     path = init_from["model"]
     try:
-        saved, _, _ = load_from_zip_file(path, device="cpu", load_data=True)
+        saved, state_dicts, variables = load_from_zip_file(path, device="cpu")
     except run_folder.UNREADABLE as error:
         raise run_folder.RunFolderError(
             f"--init-from model {path!r} is not readable: {type(error).__name__}: {error}"
         ) from error
-    if init_from.get("normalizer"):
-        run_folder.load_normalizer(init_from["normalizer"])
     env = make_env(env_id, env_kwargs)
     try:
         for name in ("observation_space", "action_space"):
-            if saved.get(name) != getattr(env, name):
+            if not same_space(getattr(env, name), saved.get(name)):
                 raise ConfigError(
-                    f"--init-from model {path!r} has the {name} {saved.get(name)}; this run's "
-                    f"env has {getattr(env, name)} (different env kwargs?)"
+                    f"--init-from model {path!r} has the {name} "
+                    f"{describe_space(saved.get(name))}; this run's env has "
+                    f"{describe_space(getattr(env, name))} (different env kwargs?)"
                 )
     finally:
         env.close()
+    normalizer = init_from.get("normalizer")
+    return TrainedStart(
+        path,
+        state_dicts,
+        variables or {},
+        run_folder.load_normalizer(normalizer) if normalizer else None,
+    )
 
 
-def load_trained_weights(model, path: str) -> None:
-    """Every network, optimiser and (SAC) entropy coefficient of a saved model of the same
-    algorithm, into ``model``; its hyper-parameters stay the new run's."""
-    from stable_baselines3.common.save_util import load_from_zip_file, recursive_setattr
+def load_trained_weights(model, trained: TrainedStart) -> None:
+    """Every network, optimiser and (SAC) entropy coefficient of the trained model, into
+    ``model`` of the same algorithm; its hyper-parameters stay the new run's."""
+    from stable_baselines3.common.save_util import recursive_setattr
 
-    _, state_dicts, variables = load_from_zip_file(path, device=model.device)
     try:
-        model.set_parameters(state_dicts, exact_match=True, device=model.device)
+        model.set_parameters(trained.state_dicts, exact_match=True, device=model.device)
     except (RuntimeError, ValueError) as error:
         raise ConfigError(
-            f"--init-from model {path!r} does not fit this run's networks (different "
-            f"policy_kwargs?): {error}"
+            f"--init-from model {trained.model_path!r} does not fit this run's networks "
+            f"(different policy_kwargs?): {error}"
         ) from error
     # set_parameters leaves out bare tensors such as SAC's log_ent_coef: without it a tuned
     # policy would restart at entropy coefficient 1 and unlearn its precision.
-    for name, tensor in (variables or {}).items():
+    for name, tensor in trained.variables.items():
         if tensor is not None:
-            recursive_setattr(model, f"{name}.data", tensor.data)
+            recursive_setattr(model, f"{name}.data", tensor.data.to(model.device))
 
 
 def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = False, **overrides):
