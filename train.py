@@ -29,6 +29,7 @@ from agents.run_folder import RunFolderError  # noqa: E402
 RUN_DEFINING_FLAGS = (
     "env", "algo", "seed", "n_envs", "vec_env", "config", "hyperparams", "env_kwargs",
     "eval_freq", "eval_episodes", "save_freq", "run_dir", "tensorboard", "init_from",
+    "init_replay_buffer",
 )  # fmt: skip
 
 
@@ -51,6 +52,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="RUN_DIR",
         help="start from a trained run's best policy and normaliser (same env and algorithm); "
         "everything else is this run's",
+    )
+    run.add_argument(
+        "--init-replay-buffer",
+        action="store_true",
+        default=None,
+        help="with --init-from (SAC): also start from the replay buffer (and its size) of the "
+        "trained run's newest checkpoint; its rewards stay those of the trained run's env",
     )
     run.add_argument("--device", help="torch device: auto, cpu, cuda, cuda:N (default: auto)")
     run.add_argument("--torch-threads", type=int, help="torch CPU threads (default: 1)")
@@ -128,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
                 tensorboard=args.tensorboard,
                 torch_threads=args.torch_threads,
                 init_from=args.init_from,
+                init_replay_buffer=args.init_replay_buffer,
             )
         )
         run_dir = args.run_dir or training.new_run_dir(config, args.log_folder)

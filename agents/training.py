@@ -104,10 +104,12 @@ def resolve_config(
     tensorboard: bool = False,
     torch_threads: int = DEFAULT_TORCH_THREADS,
     init_from: str | None = None,
+    init_replay_buffer: bool = False,
 ) -> dict:
     """Everything a run needs, checked: the hyper-parameter file's entry for ``env_id`` with
     ``hyperparams`` and ``env_kwargs`` merged over it and the explicit arguments on top.
-    ``init_from`` names a trained run whose policy the new run starts from."""
+    ``init_from`` names a trained run whose policy the new run starts from, and with
+    ``init_replay_buffer`` its newest checkpoint's replay buffer too."""
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
@@ -140,17 +142,24 @@ def resolve_config(
         "tensorboard": bool(tensorboard),
         "torch_threads": int_at_least("torch-threads", torch_threads),
     }
+    if init_replay_buffer and not init_from:
+        raise ConfigError("--init-replay-buffer needs --init-from RUN_DIR to take it from")
     config["init_from"] = (
-        check_init_from(init_from, env_id, algo, config["normalize"]) if init_from else None
+        check_init_from(init_from, env_id, algo, config["normalize"], init_replay_buffer)
+        if init_from
+        else None
     )
     policy_kwargs(config["hyperparams"].get("policy_kwargs"))  # fails early on bad names
     return config
 
 
-def check_init_from(source: str, env_id: str, algo: str, normalize: bool) -> dict:
+def check_init_from(
+    source: str, env_id: str, algo: str, normalize: bool, replay_buffer: bool = False
+) -> dict:
     """The trained run a new run starts from (rl-baselines3-zoo's ``--trained-agent``): its
     best model (else its final one) and normaliser, for the same env, algorithm and
-    normalisation. Recorded in the new run's config with the model's SHA-256."""
+    normalisation, and with ``replay_buffer`` the replay buffer of its newest checkpoint.
+    Recorded in the new run's config with the model's SHA-256."""
     run_dir = Path(source)
     try:
         trained = run_folder.read_config(run_dir)
@@ -171,12 +180,28 @@ def check_init_from(source: str, env_id: str, algo: str, normalize: bool) -> dic
         raise ConfigError(f"--init-from {source!r} has no {model_path.name}")
     if normalize and not normalizer_path.is_file():
         raise ConfigError(f"--init-from {source!r} has no {normalizer_path.name}")
-    return {
+    chosen = {
         "run": str(run_dir),
         "model": str(model_path),
         "normalizer": str(normalizer_path) if normalize else None,
         "sha256": hashlib.sha256(model_path.read_bytes()).hexdigest(),
     }
+    if replay_buffer:
+        chosen["replay_buffer"] = str(_checkpoint_replay_buffer(run_dir, algo))
+    return chosen
+
+
+def _checkpoint_replay_buffer(run_dir: Path, algo: str) -> Path:
+    if not hasattr(ALGO_CLASSES[algo], "load_replay_buffer"):
+        raise ConfigError(f"--init-replay-buffer: {algo} is on-policy and keeps no replay buffer")
+    steps = run_folder.latest_checkpoint(run_dir)
+    path = run_folder.checkpoint_paths(run_dir, steps)["replay_buffer"] if steps else None
+    if path is None or not path.is_file():
+        raise ConfigError(
+            f"--init-replay-buffer: {str(run_dir)!r} has no checkpoint with a replay buffer "
+            f"(looked for {run_folder.CHECKPOINTS}/replay_buffer_STEPS_steps.pkl)"
+        )
+    return path
 
 
 def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
@@ -444,6 +469,9 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
     )
     if trained is not None:
         load_trained_weights(model, trained)
+        if config["init_from"].get("replay_buffer"):
+            # Its rewards are the trained run's: a changed reward kwarg applies to new ones only.
+            run_folder.load_replay_buffer(model, Path(config["init_from"]["replay_buffer"]))
     if config.get("demonstrations"):
         added = seed_replay_buffer(model, config)
         run_folder.write_text_atomically(

@@ -97,6 +97,7 @@ def test_a_python_expression_stays_a_string():
         (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
         (["--resume", "runs/x", "--init-from", "runs/y"], "--init-from cannot be changed"),
         (["--init-from", "no/such/run"], "--init-from: run folder 'no/such/run' does not exist"),
+        (["--init-replay-buffer"], "--init-replay-buffer needs --init-from RUN_DIR"),
         (["--device", "tpu"], "not a torch device"),
         (["--timesteps", "many"], "invalid int value"),
         (
@@ -272,6 +273,20 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
     assert recorded["run"] == str(source)
     best = (source / run_folder.BEST_MODEL).read_bytes()
     assert recorded["sha256"] == hashlib.sha256(best).hexdigest()
+    assert "replay_buffer" not in recorded
+
+    # With --init-replay-buffer it also keeps the trained run's newest replay buffer.
+    args = quick_args("InstrumentGrasp-v0", "sac", tmp_path / "kept", 32, n_envs=1)
+    run_train(*args, "learning_starts=64", "--init-from", str(source), "--init-replay-buffer")
+    kept = SAC.load(tmp_path / "kept" / run_folder.FINAL_MODEL)
+    kept.load_replay_buffer(run_folder.checkpoint_paths(tmp_path / "kept", 32)["replay_buffer"])
+    trained.load_replay_buffer(run_folder.checkpoint_paths(source, 128)["replay_buffer"])
+    assert kept.replay_buffer.size() == 128 + 32
+    np.testing.assert_array_equal(
+        kept.replay_buffer.actions[:128], trained.replay_buffer.actions[:128]
+    )
+    recorded = yaml.safe_load((tmp_path / "kept" / run_folder.CONFIG).read_text())["init_from"]
+    assert recorded["replay_buffer"].endswith("replay_buffer_128_steps.pkl")
 
     # Another algorithm, or another observation space, is refused with the reason.
     with pytest.raises(SystemExit):
@@ -416,6 +431,6 @@ def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
     episodes = run_episodes(env, load_policy(shipped), range(2000, 2020), ("is_success",))
     env.close()
     successes = sum(episode["is_success"] for episode in episodes)
-    # 9 of these 20 when shipped (a policy loaded without its normaliser grasps none); the
-    # margin allows for other machines' floating point.
-    assert successes >= 6
+    # 16 of these 20 when shipped (a policy loaded without its normaliser grasps none, the
+    # previous shipped policy 9); the margin allows for other machines' floating point.
+    assert successes >= 12
