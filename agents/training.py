@@ -469,9 +469,9 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
     )
     if trained is not None:
         load_trained_weights(model, trained)
-        if config["init_from"].get("replay_buffer"):
+        if trained.replay_buffer is not None:
             # Its rewards are the trained run's: a changed reward kwarg applies to new ones only.
-            run_folder.load_replay_buffer(model, Path(config["init_from"]["replay_buffer"]))
+            run_folder.load_replay_buffer(model, trained.replay_buffer)
     if config.get("demonstrations"):
         added = seed_replay_buffer(model, config)
         run_folder.write_text_atomically(
@@ -487,12 +487,14 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
 @dataclass(frozen=True)
 class TrainedStart:
     """What ``--init-from`` loads, once: the saved model's state dicts and bare tensors, and
-    its normaliser (None without normalisation)."""
+    its normaliser (None without normalisation); and the replay buffer to load into the new
+    model with ``--init-replay-buffer`` (else None)."""
 
     model_path: str
     state_dicts: dict
     variables: dict
     normalizer: VecNormalize | None
+    replay_buffer: Path | None
 
 
 def load_trained_start(init_from: dict, env_id: str, env_kwargs: Mapping) -> TrainedStart:
@@ -519,12 +521,13 @@ def load_trained_start(init_from: dict, env_id: str, env_kwargs: Mapping) -> Tra
                 )
     finally:
         env.close()
-    normalizer = init_from.get("normalizer")
+    normalizer, replay_buffer = init_from.get("normalizer"), init_from.get("replay_buffer")
     return TrainedStart(
         path,
         state_dicts,
         variables or {},
         run_folder.load_normalizer(normalizer) if normalizer else None,
+        Path(replay_buffer) if replay_buffer else None,
     )
 
 
