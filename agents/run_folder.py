@@ -210,14 +210,31 @@ def load_normalizer(path: Path):
     return normalizer
 
 
-def load_replay_buffer(model, path: Path) -> None:
+def read_replay_buffer(path: Path):
+    """The SB3 replay buffer pickled at ``path``, or a RunFolderError naming the file."""
+    from stable_baselines3.common.buffers import ReplayBuffer
+    from stable_baselines3.common.save_util import load_from_pkl
+
     try:
-        model.load_replay_buffer(Path(path))
+        buffer = load_from_pkl(Path(path))
     except UNREADABLE as error:
         raise RunFolderError(
             f"{str(path)!r} is not a readable replay buffer (truncated, corrupt or foreign): "
             f"{type(error).__name__}: {error}"
         ) from error
+    if not isinstance(buffer, ReplayBuffer):
+        raise RunFolderError(
+            f"{str(path)!r} holds a {type(buffer).__name__}, not an SB3 replay buffer"
+        )
+    return buffer
+
+
+def use_replay_buffer(model, buffer) -> None:
+    """Give an off-policy ``model`` a buffer from :func:`read_replay_buffer`: what SB3's
+    ``load_replay_buffer`` does for the buffers it writes (no HER here), split so that a
+    buffer can be read, and refused, before a run folder is made."""
+    model.replay_buffer = buffer
+    buffer.device = model.device
 
 
 def read_curriculum_state(path: Path) -> dict | None:

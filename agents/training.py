@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from gymnasium.envs.registration import load_env_creator
 from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
@@ -438,7 +439,9 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         )
     # Loaded before the folder is made: a refused start leaves nothing behind.
     trained = (
-        load_trained_start(config["init_from"], config["env_id"], config["env_kwargs"])
+        load_trained_start(
+            config["init_from"], config["env_id"], config["env_kwargs"], config["n_envs"]
+        )
         if config.get("init_from")
         else None
     )
@@ -471,7 +474,7 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         load_trained_weights(model, trained)
         if trained.replay_buffer is not None:
             # Its rewards are the trained run's: a changed reward kwarg applies to new ones only.
-            run_folder.load_replay_buffer(model, trained.replay_buffer)
+            run_folder.use_replay_buffer(model, trained.replay_buffer)
     if config.get("demonstrations"):
         added = seed_replay_buffer(model, config)
         run_folder.write_text_atomically(
@@ -487,20 +490,23 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
 @dataclass(frozen=True)
 class TrainedStart:
     """What ``--init-from`` loads, once: the saved model's state dicts and bare tensors, and
-    its normaliser (None without normalisation); and the replay buffer to load into the new
-    model with ``--init-replay-buffer`` (else None)."""
+    its normaliser (None without normalisation); and, with ``--init-replay-buffer``, the
+    replay buffer to give the new model (else None)."""
 
     model_path: str
     state_dicts: dict
     variables: dict
     normalizer: VecNormalize | None
-    replay_buffer: Path | None
+    replay_buffer: ReplayBuffer | None
 
 
-def load_trained_start(init_from: dict, env_id: str, env_kwargs: Mapping) -> TrainedStart:
-    """The ``init_from`` model and normaliser, or a ConfigError / RunFolderError when they
-    cannot be read or the model does not observe and act in the spaces of ``env_id`` with
-    ``env_kwargs`` (an env kwarg such as ``obs_mode`` changes them)."""
+def load_trained_start(
+    init_from: dict, env_id: str, env_kwargs: Mapping, n_envs: int
+) -> TrainedStart:
+    """The ``init_from`` model, normaliser and replay buffer, or a ConfigError /
+    RunFolderError when one cannot be read, the model does not observe and act in the spaces
+    of ``env_id`` with ``env_kwargs`` (an env kwarg such as ``obs_mode`` changes them), or
+    the buffer was filled by another number of envs than ``n_envs``."""
     from stable_baselines3.common.save_util import load_from_zip_file
 
     path = init_from["model"]
@@ -521,13 +527,21 @@ def load_trained_start(init_from: dict, env_id: str, env_kwargs: Mapping) -> Tra
                 )
     finally:
         env.close()
-    normalizer, replay_buffer = init_from.get("normalizer"), init_from.get("replay_buffer")
+    normalizer, buffer = init_from.get("normalizer"), init_from.get("replay_buffer")
+    replay_buffer = run_folder.read_replay_buffer(buffer) if buffer else None
+    # SB3 stores a transition per env in each row: rows of another width would be broadcast
+    # (one env's step copied into several columns) or fail mid-run.
+    if replay_buffer is not None and replay_buffer.n_envs != n_envs:
+        raise ConfigError(
+            f"--init-replay-buffer: {buffer!r} was filled by {replay_buffer.n_envs} env(s); "
+            f"this run has --n-envs {n_envs}: pass --n-envs {replay_buffer.n_envs}"
+        )
     return TrainedStart(
         path,
         state_dicts,
         variables or {},
         run_folder.load_normalizer(normalizer) if normalizer else None,
-        Path(replay_buffer) if replay_buffer else None,
+        replay_buffer,
     )
 
 
@@ -592,7 +606,9 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
             tensorboard_log=_tensorboard_dir(config, run_dir),
         )
         if paths["replay_buffer"].is_file():
-            run_folder.load_replay_buffer(model, paths["replay_buffer"])
+            run_folder.use_replay_buffer(
+                model, run_folder.read_replay_buffer(paths["replay_buffer"])
+            )
         elif hasattr(model, "replay_buffer"):
             print(
                 f"warning: {paths['replay_buffer']} is missing; {config['algo'].upper()} "

@@ -288,6 +288,21 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
     recorded = yaml.safe_load((tmp_path / "kept" / run_folder.CONFIG).read_text())["init_from"]
     assert recorded["replay_buffer"].endswith("replay_buffer_128_steps.pkl")
 
+    # A buffer filled by another number of envs, or a damaged one, is refused before the new
+    # run folder is made.
+    wide = quick_args("InstrumentGrasp-v0", "sac", tmp_path / "wide", 32, n_envs=2)
+    result = run_train(*wide, "--init-from", str(source), "--init-replay-buffer", check=False)
+    assert result.returncode == 2
+    assert "was filled by 1 env(s); this run has --n-envs 2" in result.stderr
+    assert not (tmp_path / "wide").exists()
+    buffer = run_folder.checkpoint_paths(source, 128)["replay_buffer"]
+    buffer.write_bytes(buffer.read_bytes()[:1000])
+    broken = quick_args("InstrumentGrasp-v0", "sac", tmp_path / "broken", 32, n_envs=1)
+    result = run_train(*broken, "--init-from", str(source), "--init-replay-buffer", check=False)
+    assert result.returncode == 2
+    assert f"{str(buffer)!r} is not a readable replay buffer" in result.stderr
+    assert not (tmp_path / "broken").exists()
+
     # Another algorithm, or another observation space, is refused with the reason.
     with pytest.raises(SystemExit):
         train.main(["--env", "InstrumentGrasp-v0", "--algo", "ppo", "--init-from", str(source)])
