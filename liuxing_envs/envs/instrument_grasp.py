@@ -192,8 +192,9 @@ class InstrumentGraspEnv(gym.Env):
     ===  =====================  ===============================================================
 
     With ``ee_delta`` (default) the tool stays pointing down; the target is clipped to the
-    workspace above the tray (the fingertips stop 1 mm above its floor) and solved with the
-    arm's closed-form IK; a target it cannot reach leaves the arm's set-point unchanged.
+    workspace above the tray (the fingertips stop 1 mm above its floor; the tool centre stays
+    within the tray's inner walls, which the pads and open fingers can still touch) and solved
+    with the arm's closed-form IK; a target it cannot reach leaves the arm's set-point unchanged.
     Control runs at ``control_hz`` over physics steps of ``timestep`` seconds. The arm's joint
     servos track their set-points with ``arm_stiffness`` times their full stiffness (1: a stiff
     position-controlled arm; 0.1: a cobot's compliance mode, which bumps the instrument with a
