@@ -193,7 +193,7 @@ def check_init_from(
 
 
 def _checkpoint_replay_buffer(run_dir: Path, algo: str) -> Path:
-    if not hasattr(ALGO_CLASSES[algo], "load_replay_buffer"):
+    if issubclass(ALGO_CLASSES[algo], OnPolicyAlgorithm):
         raise ConfigError(f"--init-replay-buffer: {algo} is on-policy and keeps no replay buffer")
     steps = run_folder.latest_checkpoint(run_dir)
     path = run_folder.checkpoint_paths(run_dir, steps)["replay_buffer"] if steps else None
