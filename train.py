@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
+from agents import interrupts  # noqa: E402
 from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
 from agents.run_folder import RunFolderError  # noqa: E402
 
@@ -84,18 +84,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     # A scheduler's SIGTERM (pre-emption, `kill`) saves a checkpoint just as Ctrl-C does.
-    # SIGINT gets the same handler explicitly: a process started in the background by a
-    # non-interactive shell inherits SIGINT ignored, and Python then leaves it ignored.
-    signal.signal(signal.SIGTERM, _interrupt)
-    signal.signal(signal.SIGINT, _interrupt)
+    interrupts.install()
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
     from agents import training
 

@@ -31,7 +31,7 @@ from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 import liuxing_envs
-from agents import run_folder
+from agents import interrupts, run_folder
 from agents.config import (
     ALGOS,
     ConfigError,
@@ -267,6 +267,7 @@ def algorithm_kwargs(hyperparams: Mapping) -> dict:
 
 def _env_factory(config: dict, monitor_file: str | None, keys):
     def make():
+        interrupts.ignore_in_worker()
         env = make_env(config["env_id"], config["env_kwargs"])
         monitored = keys
         if config.get("start_curriculum"):
@@ -368,6 +369,14 @@ class RolloutBoundary(BaseCallback):
         return True
 
 
+class StopWhenRequested(BaseCallback):
+    """Ends ``learn()`` at the next env step once Ctrl-C or SIGTERM asked for it (see
+    :mod:`agents.interrupts`)."""
+
+    def _on_step(self) -> bool:
+        return not interrupts.requested()
+
+
 class PeriodicCheckpoint(_Periodic):
     def __init__(self, run_dir: Path, every: int, curriculum=None) -> None:
         super().__init__(every)
@@ -375,6 +384,15 @@ class PeriodicCheckpoint(_Periodic):
 
     def act(self) -> None:
         save_checkpoint(self.model, self.run_dir, self.curriculum)
+
+
+class _StopRequested(Exception):
+    pass
+
+
+def _raise_if_requested() -> None:
+    if interrupts.requested():
+        raise _StopRequested
 
 
 class PeriodicEvaluation(_Periodic):
@@ -394,11 +412,16 @@ class PeriodicEvaluation(_Periodic):
         self.started = time.perf_counter()
 
     def act(self) -> None:
-        self.evaluate()
+        try:
+            self.evaluate()
+        except _StopRequested:
+            pass  # an evaluation cut short is not recorded; learn() stops at the next step
 
     def evaluate(self) -> dict:
         policy = SB3Policy(self.model, self.model.get_vec_normalize_env())
-        episodes = run_episodes(self.env, policy, self.seeds, (self.task.metric,))
+        episodes = run_episodes(
+            self.env, policy, self.seeds, (self.task.metric,), on_episode=_raise_if_requested
+        )
         returns = [episode["return"] for episode in episodes]
         row = {
             "timesteps": int(self.num_timesteps),
@@ -637,7 +660,7 @@ def _learn(
     curriculum: dict | None = None,
 ) -> dict:
     boundary = RolloutBoundary()
-    callbacks = [boundary]
+    callbacks = [boundary, StopWhenRequested()]
     level = level_callback(config.get("start_curriculum"), curriculum)
     if level is not None:
         callbacks.append(level)
@@ -647,13 +670,16 @@ def _learn(
         callbacks.append(PeriodicEvaluation(config, run_dir, config["eval_freq"]))
     started = time.perf_counter()
     try:
-        model.learn(
-            total_timesteps=config["n_timesteps"] - model.num_timesteps,
-            callback=callbacks,
-            reset_num_timesteps=not resuming,
-            progress_bar=progress_bar,
-            tb_log_name="run",
-        )
+        with interrupts.deferred():
+            model.learn(
+                total_timesteps=config["n_timesteps"] - model.num_timesteps,
+                callback=callbacks,
+                reset_num_timesteps=not resuming,
+                progress_bar=progress_bar,
+                tb_log_name="run",
+            )
+        if interrupts.requested():
+            raise KeyboardInterrupt
     except KeyboardInterrupt:
         model.num_timesteps = boundary.steps
         steps = save_checkpoint(model, run_dir, level)

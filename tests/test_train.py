@@ -7,6 +7,7 @@ benchmarks in the README)."""
 from __future__ import annotations
 
 import json
+import os
 import pickle
 import signal
 import subprocess
@@ -327,32 +328,38 @@ def test_resuming_a_finished_run_needs_more_steps(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("interrupt", [signal.SIGINT, signal.SIGTERM])
-def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, tmp_path):
+@pytest.mark.parametrize(
+    "interrupt, vec_env",
+    [(signal.SIGINT, "dummy"), (signal.SIGTERM, "dummy"), (signal.SIGINT, "subproc")],
+)
+def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, vec_env, tmp_path):
     # PPO collects 2 envs x 32 steps per rollout: an uninterrupted 1000-step run ends at 1024.
     run_dir, total, rollout = tmp_path / "run", 1000, 64
     process = subprocess.Popen(
         [
             sys.executable, "train.py",
             *quick_args("ViewPlanning-v0", "ppo", run_dir, total),
-            "--save-freq", "0", "--eval-freq", "0",
+            "--save-freq", "0", "--eval-freq", "0", "--vec-env", vec_env,
         ],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        start_new_session=True,  # its own process group, as a terminal's foreground job
     )  # fmt: skip
     deadline = time.monotonic() + 300
-    # Wait until training has completed a few episodes, then interrupt as Ctrl-C would.
+    # Wait until training has completed a few episodes, then interrupt as Ctrl-C would:
+    # the terminal signals the whole process group, the env workers included.
     while time.monotonic() < deadline and process.poll() is None:
         monitors = list((run_dir / run_folder.MONITOR).glob("*.csv"))
         if sum(len(p.read_text().splitlines()) for p in monitors) > 40:
             break
         time.sleep(0.2)
-    process.send_signal(interrupt)
+    os.killpg(process.pid, interrupt)
     stdout, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, stderr[-2000:]
     assert "checkpoint saved" in stdout
+    assert "Traceback" not in stderr, stderr[-2000:]
     steps = run_folder.latest_checkpoint(run_dir)
     # Saved at the last whole rollout: what was lost is the half-collected one, nothing more.
     assert steps is not None and 0 < steps < total and steps % rollout == 0
@@ -363,6 +370,26 @@ def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, tmp_
     final = PPO.load(run_dir / run_folder.FINAL_MODEL)
     assert final.num_timesteps == -(-total // rollout) * rollout == 1024
     assert run_folder.latest_checkpoint(run_dir) == 1024
+
+
+def test_a_signal_while_learning_waits_for_the_next_step_and_a_second_one_does_not():
+    from agents import interrupts
+
+    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    interrupts.install()
+    try:
+        with pytest.raises(KeyboardInterrupt):  # outside training: at once
+            signal.raise_signal(signal.SIGTERM)
+        with interrupts.deferred():
+            signal.raise_signal(signal.SIGINT)
+            assert interrupts.requested()
+            with pytest.raises(KeyboardInterrupt):
+                signal.raise_signal(signal.SIGTERM)
+        with interrupts.deferred():  # each training loop starts with no request
+            assert not interrupts.requested()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 # --- policy parts ----------------------------------------------------------------------------
