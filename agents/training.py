@@ -678,7 +678,7 @@ def _learn(
                 progress_bar=progress_bar,
                 tb_log_name="run",
             )
-        if interrupts.requested():
+        if interrupts.requested():  # learn() returned early: save and exit as Ctrl-C does
             raise KeyboardInterrupt
     except KeyboardInterrupt:
         model.num_timesteps = boundary.steps
