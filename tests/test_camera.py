@@ -30,6 +30,7 @@ from liuxing_envs.sim.camera import (
     DepthNoise,
 )
 from liuxing_envs.sim.scene import (
+    ARM_BASE_BODY,
     HOME_QPOS,
     WRIST_CAMERA,
     WRIST_CAMERA_SITE,
@@ -408,6 +409,80 @@ def test_out_of_range_pixels_read_zero(box_model, backend):
     assert np.all((far == 0) | (far >= 0.45))
     assert 50 < np.count_nonzero(near) < 1000
     np.testing.assert_array_equal(near > 0, far == 0)
+
+
+def _tabletop_with_a_free_camera(floor_tilt_deg: float = 0.0) -> mujoco.MjModel:
+    """The table and floor, a box standing on the table (static), a box and a sphere on a
+    mocap body (movable) and a camera on another mocap body."""
+    spec = load_scene_spec()
+    spec.delete(spec.body(ARM_BASE_BODY))
+    for key in list(spec.keys):  # they hold the arm's joints
+        spec.delete(key)
+    tilt = math.radians(floor_tilt_deg) / 2
+    spec.geom("floor").quat = [math.cos(tilt), math.sin(tilt), 0.0, 0.0]
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=BOX_HALF, pos=CYLINDER_POS)
+    objects = spec.worldbody.add_body(name="objects", mocap=True, pos=BOX_POS)
+    objects.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=BOX_HALF)
+    objects.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.035, 0, 0], pos=[0.1, 0.17, 0])
+    rig = spec.worldbody.add_body(name="rig", mocap=True)
+    rig.add_camera(name="probe")
+    return spec.compile()
+
+
+def _image_casting_every_ray(camera: DepthCamera, model, data) -> np.ndarray:
+    backend = camera._require_open()
+    backend._shortcuts[id(model)] = (model, None)
+    try:
+        return camera.render(data)
+    finally:
+        backend._shortcuts.clear()
+
+
+def test_raycast_table_shortcut_gives_the_full_cast_image():
+    # The raycast backend answers rays that can only land on the table top in numpy
+    # (_TableShortcut) and casts the rest; the image must be the one casting every ray gives,
+    # bit for bit, from anywhere: looking down, past the table's edge, and from below its top.
+    model = _tabletop_with_a_free_camera()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    rig, objects = model.body("rig").mocapid[0], model.body("objects").mocapid[0]
+    rng = np.random.default_rng(0)
+    with DepthCamera(model, "probe", backend="raycast") as camera:
+        backend = camera._require_open()
+        shortcut = backend._shortcut(model, data)
+        assert shortcut is not None
+        assert shortcut.obstacles.size == 3  # the static box and the two movable geoms
+        answered = 0
+        for _ in range(60):
+            eye = rng.uniform([-0.4, -0.9, -0.2], [1.3, 0.9, 1.0])
+            target = rng.uniform([0.2, -0.4, -0.1], [0.8, 0.5, 0.1])
+            data.mocap_pos[rig] = eye
+            data.mocap_quat[rig] = _look_at_quat(eye, target)
+            data.mocap_pos[objects] = BOX_POS + rng.uniform(-0.15, 0.15, 3) * [1, 1, 0]
+            mujoco.mj_kinematics(model, data)
+            image = camera.render(data)
+            position, rotation = camera.pose(data)
+            solved = shortcut.solve(data, position, backend._rays_cam @ rotation.T, 10.0)
+            answered += solved is not None and solved[1].size < 0.8 * backend._nray
+            np.testing.assert_array_equal(image, _image_casting_every_ray(camera, model, data))
+        assert answered >= 20  # the shortcut did the work in many of the views
+
+
+def test_raycast_table_shortcut_stays_off_where_it_would_not_pay_or_be_exact(objects_model):
+    # A tilted plane can be met anywhere, also above the table; the arm's links are more
+    # obstacles than the shortcut pays for. Every ray is cast, and the image is unchanged.
+    tilted = _tabletop_with_a_free_camera(floor_tilt_deg=10.0)
+    tilted_data = mujoco.MjData(tilted)
+    mujoco.mj_kinematics(tilted, tilted_data)
+    for model, data, name in (
+        (tilted, tilted_data, "probe"),
+        (objects_model, _data_at(objects_model), WRIST_CAMERA),
+    ):
+        with DepthCamera(model, name, backend="raycast") as camera:
+            assert camera._require_open()._shortcut(model, data) is None
+            np.testing.assert_array_equal(
+                camera.render(data), _image_casting_every_ray(camera, model, data)
+            )
 
 
 def test_noise_pushing_depth_out_of_range_reads_zero():
