@@ -431,7 +431,7 @@ def _tabletop_with_a_free_camera(floor_tilt_deg: float = 0.0) -> mujoco.MjModel:
 
 def _image_casting_every_ray(camera: DepthCamera, model, data) -> np.ndarray:
     backend = camera._require_open()
-    backend._shortcuts[id(model)] = (model, None)
+    backend._shortcuts[model] = None
     try:
         return camera.render(data)
     finally:

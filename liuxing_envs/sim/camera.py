@@ -555,8 +555,9 @@ class _TableShortcut:
             along = rays @ centres.T  # (rays, k)
             gap2 = np.einsum("ki,ki->k", centres, centres) - along * along
             answered &= ~(gap2 <= self.radii2).any(axis=1)
-        dist[~answered] = -1.0
-        return dist, np.flatnonzero(~answered)
+        missed = ~answered
+        dist[missed] = -1.0
+        return dist, np.flatnonzero(missed)
 
 
 class _RaycastBackend:
@@ -583,9 +584,8 @@ class _RaycastBackend:
         self._geomid = np.empty(self._nray, dtype=np.int32)
         self._dist = np.empty(self._nray, dtype=np.float64)
         self._cutoff = _ray_cutoff(intrinsics)
-        # Per scene model: (the model, its _TableShortcut or None). The model is kept so that
-        # its id cannot be reused by another one.
-        self._shortcuts: dict[int, tuple[mujoco.MjModel, _TableShortcut | None]] = {}
+        # Per scene model (MjModel hashes by identity): its _TableShortcut, or None.
+        self._shortcuts: dict[mujoco.MjModel, _TableShortcut | None] = {}
 
     def render(
         self, data: mujoco.MjData, scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None
@@ -602,7 +602,7 @@ class _RaycastBackend:
         else:
             dist, to_cast = solved
             if to_cast.size:
-                cast = np.empty(to_cast.size)
+                cast = self._dist[: to_cast.size]
                 self._cast(model, data, position, rays[to_cast], cast)
                 dist[to_cast] = cast
         depth = np.where(dist >= 0.0, dist * self._cos_axis, 0.0)
@@ -634,11 +634,9 @@ class _RaycastBackend:
 
     def _shortcut(self, model: mujoco.MjModel, data: mujoco.MjData) -> _TableShortcut | None:
         """The scene's table shortcut, found on the first image of each model and kept."""
-        known = self._shortcuts.get(id(model))
-        if known is None or known[0] is not model:
-            known = (model, _TableShortcut.for_scene(model, data, self._geomgroup))
-            self._shortcuts[id(model)] = known
-        return known[1]
+        if model not in self._shortcuts:
+            self._shortcuts[model] = _TableShortcut.for_scene(model, data, self._geomgroup)
+        return self._shortcuts[model]
 
     def close(self) -> None:
         pass
