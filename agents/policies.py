@@ -6,7 +6,9 @@ occupancy map of ViewPlanning-v0 enters the MLP as 4096 unrelated inputs.
 :class:`PerceptionExtractor` instead uses
 
 - a small strided CNN per image key (depth/RGB, channel-first uint8, 64x64 by default),
-- a 3-D CNN on the ``map`` key (a G x G x G occupancy cube, indexed [x, y, z]),
+- a 3-D CNN on the ``map`` key (a G x G x G occupancy cube, indexed [x, y, z]), with the
+  ``free_space`` key, when the env has one (``observe_free_space=True``), as its second
+  channel,
 - the identity on every other (vector) key,
 
 and concatenates the results. Hyper-parameter files name it as
@@ -25,6 +27,8 @@ from torch import nn
 DEFAULT_IMAGE_FEATURES = 128
 DEFAULT_MAP_FEATURES = 128
 MAP_KEY = "map"
+#: Further G^3 cubes on the map's grid, stacked onto it as channels of its 3-D CNN.
+MAP_CHANNEL_KEYS = ("free_space",)
 
 
 def _output_size(module: nn.Module, shape: tuple[int, ...]) -> int:
@@ -50,28 +54,31 @@ class ImageEncoder(nn.Sequential):
 
 
 class OccupancyEncoder(nn.Module):
-    """A 3-D CNN over the flat G^3 occupancy map (G a multiple of 4)."""
+    """A 3-D CNN over ``channels`` flat G^3 cubes (G a multiple of 4), concatenated."""
 
-    def __init__(self, cells: int, features: int) -> None:
+    def __init__(self, cells: int, features: int, channels: int = 1) -> None:
         super().__init__()
         grid = round(cells ** (1 / 3))
         if grid**3 != cells:
             raise ValueError(f"the {MAP_KEY!r} observation must hold G^3 cells, got {cells}")
         self.grid = grid
+        self.channels = channels
         convs = nn.Sequential(
-            nn.Conv3d(1, 8, kernel_size=3, stride=2, padding=1),
+            nn.Conv3d(channels, 8, kernel_size=3, stride=2, padding=1),
             nn.ReLU(),
             nn.Conv3d(8, 16, kernel_size=3, stride=2, padding=1),
             nn.ReLU(),
             nn.Flatten(),
         )
         self.net = nn.Sequential(
-            convs, nn.Linear(_output_size(convs, (1, grid, grid, grid)), features), nn.ReLU()
+            convs,
+            nn.Linear(_output_size(convs, (channels, grid, grid, grid)), features),
+            nn.ReLU(),
         )
 
     def forward(self, flat: torch.Tensor) -> torch.Tensor:
         grid = self.grid
-        return self.net(flat.reshape(-1, 1, grid, grid, grid))
+        return self.net(flat.reshape(-1, self.channels, grid, grid, grid))
 
 
 class PerceptionExtractor(BaseFeaturesExtractor):
@@ -86,21 +93,36 @@ class PerceptionExtractor(BaseFeaturesExtractor):
     ) -> None:
         encoders: dict[str, nn.Module] = {}
         total = 0
-        for key, space in observation_space.spaces.items():
+        spaces = observation_space.spaces
+        map_channels = [key for key in MAP_CHANNEL_KEYS if key in spaces]
+        if map_channels and MAP_KEY not in spaces:
+            raise ValueError(f"{map_channels} are channels of the missing {MAP_KEY!r} key")
+        for key, space in spaces.items():
+            if key in MAP_CHANNEL_KEYS:
+                continue
             if is_image_space(space, normalized_image=normalized_image):
                 encoders[key] = ImageEncoder(space.shape, image_features)
                 total += image_features
             elif key == MAP_KEY:
-                encoders[key] = OccupancyEncoder(int(np.prod(space.shape)), map_features)
+                encoders[key] = OccupancyEncoder(
+                    int(np.prod(space.shape)), map_features, channels=1 + len(map_channels)
+                )
                 total += map_features
             else:
                 encoders[key] = nn.Flatten()
                 total += int(np.prod(space.shape))
         super().__init__(observation_space, features_dim=total)
         self.encoders = nn.ModuleDict(encoders)
+        self.map_channels = map_channels
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
-        return torch.cat([encoder(observations[key]) for key, encoder in self.encoders.items()], 1)
+        features = []
+        for key, encoder in self.encoders.items():
+            value = observations[key]
+            if key == MAP_KEY and self.map_channels:
+                value = torch.cat([value, *(observations[k] for k in self.map_channels)], 1)
+            features.append(encoder(value))
+        return torch.cat(features, 1)
 
 
 #: Names a hyper-parameter file may give as ``policy_kwargs.features_extractor``.

@@ -418,6 +418,26 @@ def test_perception_extractor_encodes_every_observation_key():
     env.close()
 
 
+def test_perception_extractor_stacks_free_space_onto_the_map():
+    import gymnasium as gym
+    import torch
+
+    import liuxing_envs  # noqa: F401
+    from agents.policies import PerceptionExtractor
+
+    env = gym.make("ViewPlanning-v0", observe_free_space=True)
+    extractor = PerceptionExtractor(env.observation_space, image_features=32, map_features=16)
+    assert "free_space" not in extractor.encoders
+    assert extractor.encoders["map"].channels == 2
+    assert extractor.features_dim == 32 + 16 + 1 + 9 + 20  # no extra width
+    observation, _ = env.reset(seed=0)
+    batch = {key: torch.as_tensor(value[None]).float() for key, value in observation.items()}
+    features = extractor(batch)
+    emptied = dict(batch, free_space=torch.zeros_like(batch["free_space"]))
+    assert not torch.allclose(extractor(emptied), features)
+    env.close()
+
+
 @pytest.mark.parametrize(
     "env_id, env_kwargs",
     [

@@ -270,6 +270,32 @@ def test_ground_truth_only_in_the_privileged_observation():
     privileged.close()
 
 
+def test_free_space_tells_seen_empty_cells_from_unseen_ones():
+    plain = ViewPlanningEnv(**FAST)
+    assert "free_space" not in plain.reset(seed=0)[0]
+    plain.close()
+    env = ViewPlanningEnv(observe_free_space=True, **FAST)
+    obs, _ = env.reset(seed=0, options={"object": "box", "yaw": 0.0})
+    assert env.observation_space.contains(obs)
+    grid = env.map_grid
+    occupied = obs["map"].reshape((grid,) * 3).astype(bool)
+    free = obs["free_space"].reshape((grid,) * 3).astype(bool)
+    assert not (occupied & free).any()
+    # The start view looks down on the box: in the column through its top, the cells just
+    # above the top are free, the box's inside below it is not (unseen).
+    x, y = np.argwhere(occupied.any(axis=2)).mean(axis=0).round().astype(int)
+    top = np.flatnonzero(occupied[x, y]).max()
+    assert free[x, y, top + 1 : top + 4].all()
+    assert not free[x, y, :top].any()
+    # A side view sees more empty space, and what it sees stays free or turns occupied.
+    obs, *_ = env.step(np.array([0.0, -0.8, -0.5], dtype=np.float32))
+    free_after = obs["free_space"].reshape((grid,) * 3).astype(bool)
+    occupied_after = obs["map"].reshape((grid,) * 3).astype(bool)
+    assert free_after.sum() > free.sum()
+    assert (free_after | occupied_after)[free].all()
+    env.close()
+
+
 def test_held_out_set_holds_only_held_out_objects():
     from liuxing_envs.sim.objects import OBJECT_SETS
 

@@ -27,6 +27,7 @@ from liuxing_envs.envs.validation import (
     step_context,
 )
 from liuxing_envs.perception.coverage import CoverageTracker
+from liuxing_envs.perception.free_space import FreeSpaceGrid
 from liuxing_envs.perception.fusion import VoxelMap
 from liuxing_envs.perception.pointcloud import crop_points
 from liuxing_envs.perception.reconstruction import Reconstruction, reconstruct
@@ -155,6 +156,11 @@ class ViewPlanningEnv(gym.Env):
         image-up axis (unit vectors, world frame).
     ``budget`` (1,) float32
         Share of the view budget left.
+    ``free_space`` (G³,) float32
+        Only with ``observe_free_space=True``: 1 where a depth ray has crossed the cell on
+        its way to a surface and the fused map holds no point there, on ``map``'s cube and
+        indexing. With ``map`` it tells seen-empty from unseen cells (OctoMap's free /
+        occupied / unknown), which ``map`` alone cannot.
     ``coverage`` (1,) float32
         Only with ``privileged=True``: the current coverage (ground truth).
 
@@ -183,13 +189,16 @@ class ViewPlanningEnv(gym.Env):
     ``depth_backend`` ({"auto", "gl", "raycast"}), ``depth_noise`` (a ``DepthNoise`` or None),
     the action ranges above, ``coverage_samples``, ``epsilon_fraction``, ``success_coverage``,
     ``terminate_on_success``, ``coverage_reward_scale``, ``motion_cost``, ``refusal_penalty``,
-    ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``, ``privileged``,
+    ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``,
+    ``observe_free_space``, ``privileged``,
     ``render_mode`` ("rgb_array": the scene from the overview camera with the fused points
     and the camera's frustum).
 
     **Version history.** v0: initial release. Fixed within v0 (2026-11-21): the placed
     object takes part in the arm's collision checks (before, paths could pass through it;
-    only refusals and detours change), and ``info["sim_unstable"]``.
+    only refusals and detours change), and ``info["sim_unstable"]``. Added within v0
+    (2026-11-22, off by default, so existing observations are unchanged):
+    ``observe_free_space``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -225,6 +234,7 @@ class ViewPlanningEnv(gym.Env):
         map_extent: float = DEFAULT_MAP_EXTENT,
         depth_obs_range: float = DEFAULT_DEPTH_OBS_RANGE,
         table_crop_height: float = DEFAULT_TABLE_CROP_HEIGHT,
+        observe_free_space: bool = False,
         privileged: bool = False,
         render_mode: str | None = None,
     ) -> None:
@@ -258,6 +268,7 @@ class ViewPlanningEnv(gym.Env):
         ):
             require_number(name, value, low, high)
         require_choice("terminate_on_success", terminate_on_success, (False, True))
+        require_choice("observe_free_space", observe_free_space, (False, True))
         require_choice("privileged", privileged, (False, True))
         scales = require_numbers("scales", scales, 0.05, 5.0)
         discrete_azimuths_deg = require_numbers(
@@ -292,6 +303,7 @@ class ViewPlanningEnv(gym.Env):
         self.map_grid = map_grid
         self.map_extent = float(map_extent)
         self.depth_obs_range = float(depth_obs_range)
+        self.observe_free_space = bool(observe_free_space)
         self.privileged = bool(privileged)
         self.render_mode = render_mode
 
@@ -333,6 +345,8 @@ class ViewPlanningEnv(gym.Env):
         lower[2] = table_crop_height
         self._crop = (lower, np.array(WORKSPACE_UPPER, dtype=float))
         self.map = VoxelMap(map_voxel_size, *self._crop)
+        self.free_space = FreeSpaceGrid(map_grid) if self.observe_free_space else None
+        self._hits = np.zeros((0, 3))  # world points of the latest image, uncropped
 
         self.candidate_views = _candidate_views(
             discrete_azimuths_deg, discrete_elevations_deg, discrete_radius
@@ -350,6 +364,8 @@ class ViewPlanningEnv(gym.Env):
             "camera_pose": spaces.Box(-2.0, 2.0, (9,), dtype=np.float32),
             "budget": spaces.Box(0.0, 1.0, (1,), dtype=np.float32),
         }
+        if self.observe_free_space:
+            obs_spaces["free_space"] = spaces.Box(0.0, 1.0, (map_grid**3,), dtype=np.float32)
         if self.privileged:
             obs_spaces["coverage"] = spaces.Box(0.0, 1.0, (1,), dtype=np.float32)
         self.observation_space = spaces.Dict(obs_spaces)
@@ -403,6 +419,9 @@ class ViewPlanningEnv(gym.Env):
 
         points = self._capture()
         self.center = self._estimate_center(points)
+        if self.free_space is not None:
+            self.free_space.reset(self.center, self.map_extent)
+            self._carve_free_space()
         self.coverage.update(self.placed.to_object(points))
         self._episode_ready = True
         info = self._info(0.0, {}, reached=True, refused=False, path=0.0)
@@ -428,6 +447,7 @@ class ViewPlanningEnv(gym.Env):
             unstable = motion.unstable
             if reached:
                 gain = self.coverage.update(self.placed.to_object(self._capture()))
+                self._carve_free_space()
         refused = not reached
         self._history[self.views_used] = [
             math.cos(azimuth),
@@ -585,10 +605,16 @@ class ViewPlanningEnv(gym.Env):
         """Render depth at the current pose, fuse it, and return the new cropped points."""
         rng = self.np_random if self._noise_enabled else None
         self._depth = self._render_depth(rng)
-        points = crop_points(self.camera.points_world(self._depth, self.data), *self._crop)
+        self._hits = self.camera.points_world(self._depth, self.data)
+        points = crop_points(self._hits, *self._crop)
         self.map.fuse(points)
         self._camera_locations.append(self.camera.pose(self.data)[0])
         return points
+
+    def _carve_free_space(self) -> None:
+        """Mark the cells the latest image's rays crossed (needs the episode's centre)."""
+        if self.free_space is not None:
+            self.free_space.carve(self.camera.pose(self.data)[0], self._hits)
 
     def _render_depth(self, rng: np.random.Generator | None) -> np.ndarray:
         """Depth at the live state; rays are cast in the placed variant's stand-in scene."""
@@ -609,17 +635,20 @@ class ViewPlanningEnv(gym.Env):
         scaled = np.clip(self._depth / self.depth_obs_range, 0.0, 1.0)
         depth = np.round(255 * scaled).astype(np.uint8)
         position, rotation = self.camera.pose(self.data)
+        occupied = self.map.occupancy_grid(
+            self.center, self.map_extent, self.map_grid, dtype=np.float32
+        )
         obs = {
             "depth": depth[None],
-            "map": self.map.occupancy_grid(
-                self.center, self.map_extent, self.map_grid, dtype=np.float32
-            ).flatten(),
+            "map": occupied.flatten(),
             "view_history": self._history.flatten(),
             "camera_pose": np.concatenate(
                 [position - self.center, -rotation[:, 2], rotation[:, 1]]
             ).astype(np.float32),
             "budget": np.array([1.0 - self.views_used / self.view_budget], dtype=np.float32),
         }
+        if self.free_space is not None:
+            obs["free_space"] = self.free_space.free(occupied).astype(np.float32).flatten()
         if self.privileged:
             obs["coverage"] = np.array([self.coverage.coverage], dtype=np.float32)
         return obs

@@ -1,0 +1,94 @@
+"""Space seen to be empty: the cells of a cube that depth rays crossed before hitting a surface.
+
+An occupancy map of fused points says where surfaces are, not where nothing was seen: an
+unseen cell and one a camera looked straight through both read 0. Next-best-view planners
+therefore keep a third state (OctoMap's free / occupied / unknown); the unknown cells next to
+surfaces are where the next view should look. :class:`FreeSpaceGrid` keeps the "seen" half
+of that on the same cube as :meth:`liuxing_envs.perception.fusion.VoxelMap.occupancy_grid`.
+
+Each ray from the camera to a surface point is clipped to the cube and sampled at steps of at
+most one cell, stopping half a cell short of the surface, and every sampled cell is marked
+seen. Rays without a return (no surface within range) carve nothing: in this suite they are
+rare (the table is behind the object) and their length is unknown. All rays of a view are
+handled in one numpy pass.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["DEFAULT_RAY_STRIDE", "FreeSpaceGrid"]
+
+#: Carve with every n-th ray of an image. At the suite's defaults a 64x64 image puts several
+#: pixels on each 2 cm cell of the object's cube, so half the rays mark nearly the same cells
+#: at half the cost (measured: tests/test_free_space.py).
+DEFAULT_RAY_STRIDE = 2
+
+
+class FreeSpaceGrid:
+    """Which cells of a cube (edge ``size`` m around ``center``, ``resolution`` cells per axis,
+    indexed [x, y, z] from the low corner) some ray has crossed. Call :meth:`reset` with the
+    cube before the first :meth:`carve` of an episode."""
+
+    def __init__(self, resolution: int, ray_stride: int = DEFAULT_RAY_STRIDE) -> None:
+        if int(resolution) < 1:
+            raise ValueError(f"resolution must be >= 1, got {resolution}")
+        if int(ray_stride) < 1:
+            raise ValueError(f"ray_stride must be >= 1, got {ray_stride}")
+        self.resolution = int(resolution)
+        self.ray_stride = int(ray_stride)
+        self._seen = np.zeros(self.resolution**3, dtype=bool)
+        self._lower = np.zeros(3)
+        self._cell = 1.0
+        # Uniform steps in [0, 1] along each ray's in-cube part: never more than one cell apart
+        # (the longest part is the cube's diagonal).
+        steps = math.ceil(math.sqrt(3.0) * self.resolution) + 1
+        self._fractions = np.linspace(0.0, 1.0, steps)
+
+    def reset(self, center, size: float) -> None:
+        center = np.asarray(center, dtype=np.float64)
+        if center.shape != (3,) or not np.all(np.isfinite(center)):
+            raise ValueError(f"center must be 3 finite numbers, got {center!r}")
+        if not math.isfinite(size) or size <= 0:
+            raise ValueError(f"size must be a positive number of metres, got {size}")
+        self._lower = center - 0.5 * float(size)
+        self._cell = float(size) / self.resolution
+        self._seen[:] = False
+
+    def carve(self, origin, points: np.ndarray) -> None:
+        """Mark the cells crossed by the rays from ``origin`` (the camera, world frame) to each
+        of ``points`` ((N, 3), world frame, the surfaces the rays hit)."""
+        points = np.asarray(points, dtype=np.float64)[:: self.ray_stride]
+        if len(points) == 0:
+            return
+        start = (np.asarray(origin, dtype=np.float64) - self._lower) / self._cell
+        delta = (points - self._lower) / self._cell - start
+        length = np.linalg.norm(delta, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bound_low = -start / delta
+            bound_high = (self.resolution - start) / delta
+        # A ray parallel to a slab is inside it for all t or none; the NaNs of 0/0 say "all".
+        enter = np.nan_to_num(np.minimum(bound_low, bound_high), nan=-np.inf).max(axis=1)
+        leave = np.nan_to_num(np.maximum(bound_low, bound_high), nan=np.inf).min(axis=1)
+        enter = np.maximum(enter, 0.0)
+        leave = np.minimum(leave, 1.0 - 0.5 / np.maximum(length, 1e-12))
+        crossing = leave > enter
+        if not crossing.any():
+            return
+        enter, leave = enter[crossing], leave[crossing]
+        t = enter[:, None] + (leave - enter)[:, None] * self._fractions[None, :]
+        samples = start + t[..., None] * delta[crossing][:, None, :]
+        cells = np.clip(samples.astype(np.int64), 0, self.resolution - 1).reshape(-1, 3)
+        flat = (cells[:, 0] * self.resolution + cells[:, 1]) * self.resolution + cells[:, 2]
+        self._seen[flat] = True
+
+    def seen(self) -> np.ndarray:
+        """A new ``(R, R, R)`` bool array: cells some ray crossed."""
+        return self._seen.reshape((self.resolution,) * 3).copy()
+
+    def free(self, occupied: np.ndarray) -> np.ndarray:
+        """Cells seen and not ``occupied`` (an ``(R, R, R)`` array of the same cube): where a
+        ray crossed a cell that also holds a surface point, the point wins."""
+        return self.seen() & ~np.asarray(occupied, dtype=bool)
