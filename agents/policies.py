@@ -97,6 +97,12 @@ class PerceptionExtractor(BaseFeaturesExtractor):
         map_channels = [key for key in MAP_CHANNEL_KEYS if key in spaces]
         if map_channels and MAP_KEY not in spaces:
             raise ValueError(f"{map_channels} are channels of the missing {MAP_KEY!r} key")
+        for key in map_channels:
+            if spaces[key].shape != spaces[MAP_KEY].shape:
+                raise ValueError(
+                    f"{key!r} must have the {MAP_KEY!r} key's shape {spaces[MAP_KEY].shape}, "
+                    f"got {spaces[key].shape}"
+                )
         for key, space in spaces.items():
             if key in MAP_CHANNEL_KEYS:
                 continue

@@ -56,10 +56,27 @@ def test_rays_that_miss_the_cube_or_stop_before_it_mark_nothing():
     assert marked(free_space) == set()
 
 
-def test_a_camera_inside_the_cube_marks_from_its_own_cell():
+@pytest.mark.parametrize("camera_z", [7.5, 4.5])
+def test_a_camera_inside_the_cube_marks_from_its_own_cell_on(camera_z):
     free_space = grid()
-    free_space.carve((2.5, 2.5, 7.5), [(2.5, 2.5, 0.5)])
-    assert marked(free_space) == {(2, 2, z) for z in range(1, 8)}
+    free_space.carve((2.5, 2.5, camera_z), [(2.5, 2.5, 0.5)])
+    assert marked(free_space) == {(2, 2, z) for z in range(1, int(camera_z) + 1)}
+
+
+def test_rays_in_a_face_plane_or_grazing_it_stay_in_the_cube():
+    free_space = grid()
+    # In the plane of a high face: outside the half-open cube, so nothing.
+    free_space.carve((2.5, 8.0, 3.5), [(6.2, 8.0, 3.5)])
+    free_space.carve((8.0, 2.5, 3.5), [(8.0, 6.5, 3.5)])
+    assert marked(free_space) == set()
+    # In the plane of a low face: inside.
+    free_space.carve((-3.0, 0.0, 3.5), [(6.2, 0.0, 3.5)])
+    assert marked(free_space) == {(x, 0, 3) for x in range(6)}
+    # Grazing the high x face from just inside: rounding may reach x = 8, which is cell 7,
+    # never a wrap into the next row or an index past the end.
+    free_space = grid()
+    free_space.carve((8.0 - 1e-12, 2.5, 3.5), [(8.0 - 1e-12 + 1e-8, 6.7, 3.5)])
+    assert {(x, z) for x, _, z in marked(free_space)} == {(7, 3)}
 
 
 def test_random_rays_mark_the_cells_a_fine_sampling_meets():
@@ -70,7 +87,7 @@ def test_random_rays_mark_the_cells_a_fine_sampling_meets():
     free_space.carve(origin, points)
     reference = reference_cells(origin, points)
     carved = marked(free_space)
-    # Steps of at most one cell can only skip the corner of a cell a ray grazes.
+    # Steps of at most half a cell can only skip the corner of a cell a ray grazes.
     assert carved <= reference
     assert len(carved) >= 0.9 * len(reference)
 

@@ -432,9 +432,20 @@ def test_perception_extractor_stacks_free_space_onto_the_map():
     assert extractor.features_dim == 32 + 16 + 1 + 9 + 20  # no extra width
     observation, _ = env.reset(seed=0)
     batch = {key: torch.as_tensor(value[None]).float() for key, value in observation.items()}
-    features = extractor(batch)
-    emptied = dict(batch, free_space=torch.zeros_like(batch["free_space"]))
-    assert not torch.allclose(extractor(emptied), features)
+    # The 3-D CNN sees the map as channel 0 and free space as channel 1, each a G^3 cube.
+    seen = []
+    first_conv = extractor.encoders["map"].net[0][0]
+    handle = first_conv.register_forward_hook(lambda module, args, output: seen.append(args[0]))
+    extractor(batch)
+    handle.remove()
+    cube = (1, 16, 16, 16)
+    torch.testing.assert_close(seen[0][:, 0], batch["map"].reshape(cube))
+    torch.testing.assert_close(seen[0][:, 1], batch["free_space"].reshape(cube))
+    wrong = gym.spaces.Dict(
+        {**env.observation_space.spaces, "free_space": gym.spaces.Box(0.0, 1.0, (8**3,))}
+    )
+    with pytest.raises(ValueError, match="'free_space' must have the 'map' key's shape"):
+        PerceptionExtractor(wrong)
     env.close()
 
 

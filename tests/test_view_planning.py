@@ -287,12 +287,22 @@ def test_free_space_tells_seen_empty_cells_from_unseen_ones():
     top = np.flatnonzero(occupied[x, y]).max()
     assert free[x, y, top + 1 : top + 4].all()
     assert not free[x, y, :top].any()
+    # Rays to the table carve too: most of the layer just above the table top is seen empty.
+    cell = env.map_extent / grid
+    layer = int((0.015 - (env.center[2] - env.map_extent / 2)) / cell)
+    assert free[:, :, layer][~occupied.any(axis=2)].mean() > 0.4
     # A side view sees more empty space, and what it sees stays free or turns occupied.
     obs, *_ = env.step(np.array([0.0, -0.8, -0.5], dtype=np.float32))
     free_after = obs["free_space"].reshape((grid,) * 3).astype(bool)
     occupied_after = obs["map"].reshape((grid,) * 3).astype(bool)
     assert free_after.sum() > free.sum()
     assert (free_after | occupied_after)[free].all()
+    # Nothing carries over into the next episode.
+    fresh = ViewPlanningEnv(observe_free_space=True, **FAST)
+    np.testing.assert_array_equal(
+        env.reset(seed=5)[0]["free_space"], fresh.reset(seed=5)[0]["free_space"]
+    )
+    fresh.close()
     env.close()
 
 

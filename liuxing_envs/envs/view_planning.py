@@ -158,9 +158,11 @@ class ViewPlanningEnv(gym.Env):
         Share of the view budget left.
     ``free_space`` (G³,) float32
         Only with ``observe_free_space=True``: 1 where a depth ray has crossed the cell on
-        its way to a surface and the fused map holds no point there, on ``map``'s cube and
-        indexing. With ``map`` it tells seen-empty from unseen cells (OctoMap's free /
-        occupied / unknown), which ``map`` alone cannot.
+        its way to a surface and ``map`` is 0, on ``map``'s cube and indexing. With ``map``
+        it tells seen-empty from unseen cells (OctoMap's free / occupied / unknown), which
+        ``map`` alone cannot. Every 2nd pixel with a return carves, up to half a cell short
+        of its surface; rays to the table carve too, so the cell holding the table top
+        (cropped from ``map``) can read free.
     ``coverage`` (1,) float32
         Only with ``privileged=True``: the current coverage (ground truth).
 

@@ -7,7 +7,7 @@ surfaces are where the next view should look. :class:`FreeSpaceGrid` keeps the "
 of that on the same cube as :meth:`liuxing_envs.perception.fusion.VoxelMap.occupancy_grid`.
 
 Each ray from the camera to a surface point is clipped to the cube and sampled at steps of at
-most one cell, stopping half a cell short of the surface, and every sampled cell is marked
+most half a cell, stopping half a cell short of the surface, and every sampled cell is marked
 seen. Rays without a return (no surface within range) carve nothing: in this suite they are
 rare (the table is behind the object) and their length is unknown. All rays of a view are
 handled in one numpy pass.
@@ -21,13 +21,10 @@ import numpy as np
 
 __all__ = ["DEFAULT_RAY_STRIDE", "FreeSpaceGrid"]
 
-#: Carve with every n-th ray of an image. At the suite's defaults a 64x64 image puts several
-#: pixels on each 2 cm cell of the object's cube, so half the rays mark nearly the same cells
-#: at half the cost (measured: tests/test_free_space.py).
+#: Carve with every n-th ray of an image (of its pixels with a return, row-major). At the
+#: suite's defaults a pixel spans about 5 mm of the object at working distance and a cell of
+#: its cube 2 cm, so half the rays still cross nearly every cell the image sees.
 DEFAULT_RAY_STRIDE = 2
-#: Ray parameters this far inside a ray's in-cube interval: a sample on the cube's far face
-#: would floor to cell R.
-_T_MARGIN = 1e-9
 #: Samples per cell length along a ray. One would skip the corners of cells a ray clips
 #: (12% of the cells a fine sampling meets, in tests/test_free_space.py); two skip 4%.
 _SAMPLES_PER_CELL = 2
@@ -74,13 +71,19 @@ class FreeSpaceGrid:
             inverse = 1.0 / delta
             bound_low = -start * inverse
             bound_high = (resolution - start) * inverse
-        # A ray parallel to a slab is inside it for all t or none; the NaNs of 0 * inf say "all".
-        enter = np.nan_to_num(np.minimum(bound_low, bound_high), nan=-np.inf).max(axis=1)
-        leave = np.nan_to_num(np.maximum(bound_low, bound_high), nan=np.inf).min(axis=1)
-        # The margins keep every sample inside [0, R), so flooring needs no clipping.
-        enter = np.maximum(enter, 0.0) + _T_MARGIN
-        leave = np.minimum(leave, 1.0 - 0.5 / np.maximum(length, 1e-12)) - _T_MARGIN
-        crossing = leave > enter
+        # Per axis, the interval of t inside the slab [0, R). A ray parallel to a slab is
+        # inside it for all t or for none, whatever 0 * inf gives.
+        parallel = delta == 0.0
+        in_slab = (start >= 0.0) & (start < resolution)
+        enter = np.where(
+            parallel, np.where(in_slab, -np.inf, np.inf), np.minimum(bound_low, bound_high)
+        )
+        leave = np.where(
+            parallel, np.where(in_slab, np.inf, -np.inf), np.maximum(bound_low, bound_high)
+        )
+        enter = np.maximum(enter.max(axis=1), 0.0)
+        leave = np.minimum(leave.min(axis=1), 1.0 - 0.5 / np.maximum(length, 1e-12))
+        crossing = leave > enter  # False for NaN points too
         if not crossing.any():
             return
         enter, leave, delta = enter[crossing], leave[crossing], delta[crossing]
@@ -89,7 +92,9 @@ class FreeSpaceGrid:
         t = enter[:, None] + (leave - enter)[:, None] * np.linspace(0.0, 1.0, steps)
         flat = np.zeros(t.shape)
         for axis, weight in enumerate((resolution * resolution, resolution, 1)):
-            flat += np.floor(start[axis] + t * delta[:, axis, None]) * weight
+            # Rounding can put a sample on the cube's far face (R), whose true cell is R - 1.
+            cell = np.clip(np.floor(start[axis] + t * delta[:, axis, None]), 0, resolution - 1)
+            flat += cell * weight
         self._seen[flat.astype(np.int64).ravel()] = True
 
     def seen(self) -> np.ndarray:
