@@ -305,7 +305,6 @@ class ViewPlanningEnv(gym.Env):
         self.map_grid = map_grid
         self.map_extent = float(map_extent)
         self.depth_obs_range = float(depth_obs_range)
-        self.observe_free_space = bool(observe_free_space)
         self.privileged = bool(privileged)
         self.render_mode = render_mode
 
@@ -347,7 +346,7 @@ class ViewPlanningEnv(gym.Env):
         lower[2] = table_crop_height
         self._crop = (lower, np.array(WORKSPACE_UPPER, dtype=float))
         self.map = VoxelMap(map_voxel_size, *self._crop)
-        self.free_space = FreeSpaceGrid(map_grid) if self.observe_free_space else None
+        self.free_space = FreeSpaceGrid(map_grid) if observe_free_space else None
         self._hits = np.zeros((0, 3))  # world points of the latest image, uncropped
 
         self.candidate_views = _candidate_views(
@@ -366,7 +365,7 @@ class ViewPlanningEnv(gym.Env):
             "camera_pose": spaces.Box(-2.0, 2.0, (9,), dtype=np.float32),
             "budget": spaces.Box(0.0, 1.0, (1,), dtype=np.float32),
         }
-        if self.observe_free_space:
+        if self.free_space is not None:
             obs_spaces["free_space"] = spaces.Box(0.0, 1.0, (map_grid**3,), dtype=np.float32)
         if self.privileged:
             obs_spaces["coverage"] = spaces.Box(0.0, 1.0, (1,), dtype=np.float32)
@@ -423,7 +422,7 @@ class ViewPlanningEnv(gym.Env):
         self.center = self._estimate_center(points)
         if self.free_space is not None:
             self.free_space.reset(self.center, self.map_extent)
-            self._carve_free_space()
+        self._carve_free_space()
         self.coverage.update(self.placed.to_object(points))
         self._episode_ready = True
         info = self._info(0.0, {}, reached=True, refused=False, path=0.0)
@@ -616,7 +615,7 @@ class ViewPlanningEnv(gym.Env):
     def _carve_free_space(self) -> None:
         """Mark the cells the latest image's rays crossed (needs the episode's centre)."""
         if self.free_space is not None:
-            self.free_space.carve(self.camera.pose(self.data)[0], self._hits)
+            self.free_space.carve(self._camera_locations[-1], self._hits)
 
     def _render_depth(self, rng: np.random.Generator | None) -> np.ndarray:
         """Depth at the live state; rays are cast in the placed variant's stand-in scene."""
@@ -650,7 +649,7 @@ class ViewPlanningEnv(gym.Env):
             "budget": np.array([1.0 - self.views_used / self.view_budget], dtype=np.float32),
         }
         if self.free_space is not None:
-            obs["free_space"] = self.free_space.free(occupied).astype(np.float32).flatten()
+            obs["free_space"] = self.free_space.free(occupied).astype(np.float32).ravel()
         if self.privileged:
             obs["coverage"] = np.array([self.coverage.coverage], dtype=np.float32)
         return obs

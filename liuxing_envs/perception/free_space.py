@@ -15,9 +15,9 @@ handled in one numpy pass.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from liuxing_envs.perception.fusion import checked_cube
 
 __all__ = ["DEFAULT_RAY_STRIDE", "FreeSpaceGrid"]
 
@@ -47,13 +47,9 @@ class FreeSpaceGrid:
         self._cell = 1.0
 
     def reset(self, center, size: float) -> None:
-        center = np.asarray(center, dtype=np.float64)
-        if center.shape != (3,) or not np.all(np.isfinite(center)):
-            raise ValueError(f"center must be 3 finite numbers, got {center!r}")
-        if not math.isfinite(size) or size <= 0:
-            raise ValueError(f"size must be a positive number of metres, got {size}")
-        self._lower = center - 0.5 * float(size)
-        self._cell = float(size) / self.resolution
+        center, size = checked_cube(center, size)
+        self._lower = center - 0.5 * size
+        self._cell = size / self.resolution
         self._seen[:] = False
 
     def carve(self, origin, points: np.ndarray) -> None:

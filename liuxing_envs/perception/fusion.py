@@ -51,6 +51,16 @@ _MAX_CELLS = 2**62
 Representative = Literal["mean", "first"]
 
 
+def checked_cube(center, size) -> tuple[np.ndarray, float]:
+    """``center`` (3 finite numbers) and ``size`` (a positive number of metres) of a cube,
+    as float64 and float; raises ``ValueError`` naming the bad one."""
+    center = _as_vector("center", center)
+    size = float(size)
+    if not math.isfinite(size) or size <= 0:
+        raise ValueError(f"size must be a positive number of metres, got {size}")
+    return center, size
+
+
 def _as_vector(name: str, value) -> np.ndarray:
     value = np.asarray(value, dtype=np.float64)
     # math.isfinite on 3 Python floats: ~10x cheaper than numpy's isfinite + all.
@@ -338,11 +348,8 @@ class VoxelMap:
             A new ``(R, R, R)`` array of ``dtype`` (uint8 by default, float32 for a network
             input), indexed ``[x, y, z]`` from the cube's low corner.
         """
-        center = _as_vector("center", center)
-        size = float(size)
+        center, size = checked_cube(center, size)
         resolution = int(resolution)
-        if not np.isfinite(size) or size <= 0:
-            raise ValueError(f"size must be a positive number of metres, got {size}")
         if resolution < 1:
             raise ValueError(f"resolution must be >= 1, got {resolution}")
         cube = (tuple(center.tolist()), size, resolution)  # Python floats: cheap to compare
