@@ -135,6 +135,28 @@ def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
     return result
 
 
+def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
+    """A value of the kind the algorithm's own default has, so ``gamma=abc`` fails here with
+    its name instead of as a tensor error minutes into training. Only scalars are checked:
+    a list is one of SB3's tuple forms (``train_freq: [1, episode]``), and a None default
+    (``target_kl``) leaves the kind open."""
+    if isinstance(value, (list, tuple, dict)) or default is None:
+        return
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(
+                f"{algo_name} hyper-parameter {key} must be true or false, got {value!r}"
+            )
+        return
+    if isinstance(default, (int, float)):
+        kind = "an integer" if isinstance(default, int) else "a number"
+        wanted = (
+            (int, np.integer) if isinstance(default, int) else (int, float, np.integer, np.floating)
+        )
+        if isinstance(value, bool) or not isinstance(value, wanted) or not np.isfinite(value):
+            raise ConfigError(f"{algo_name} hyper-parameter {key} must be {kind}, got {value!r}")
+
+
 def deep_update(base: Mapping, overrides: Mapping) -> dict:
     """A copy of ``base`` with ``overrides`` merged in, mapping by mapping."""
     merged = copy.deepcopy(dict(base))
@@ -183,11 +205,11 @@ def default_hyperparams(algo: str, env_id: str, config_file: str | Path | None =
 
 
 def split_hyperparams(hyperparams: Mapping, algo_class: type) -> tuple[dict, dict]:
-    """(harness settings, algorithm kwargs); unknown names raise with a suggestion."""
+    """(harness settings, algorithm kwargs); unknown names raise with a suggestion, and so
+    do values of the wrong kind (see :func:`check_hyperparam_value`)."""
+    parameters = inspect.signature(algo_class.__init__).parameters
     accepted = [
-        name
-        for name in inspect.signature(algo_class.__init__).parameters
-        if name not in ("self", "policy", "env", "_init_setup_model")
+        name for name in parameters if name not in ("self", "policy", "env", "_init_setup_model")
     ]
     allowed = sorted(set(accepted) | set(HARNESS_KEYS))
     harness, algo_kwargs = {}, {}
@@ -195,6 +217,7 @@ def split_hyperparams(hyperparams: Mapping, algo_class: type) -> tuple[dict, dic
         if key in HARNESS_KEYS:
             harness[key] = value
         elif key in accepted:
+            check_hyperparam_value(algo_class.__name__, key, value, parameters[key].default)
             algo_kwargs[key] = value
         else:
             raise ConfigError(

@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+import shutil
 import sys
 import time
 from abc import abstractmethod
@@ -468,10 +469,22 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         if config.get("init_from")
         else None
     )
+    created = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
     run_folder.write_config(run_dir, config)
     torch.set_num_threads(config["torch_threads"])
-    venv = build_vec_env(config, run_dir)
+    try:
+        venv = build_vec_env(config, run_dir)
+    except (ValueError, TypeError, FileNotFoundError, EOFError, ConnectionError) as error:
+        # Env kwargs' names were checked in resolve_config; their values only the env checks.
+        if created:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        reason = str(error)
+        if isinstance(error, (EOFError, ConnectionError)):  # a SubprocVecEnv worker's end
+            reason = "a worker process died building it; --vec-env dummy shows why"
+        raise ConfigError(
+            f"{config['env_id']} with env kwargs {config['env_kwargs']}: {reason}"
+        ) from error
     if trained is not None and trained.normalizer is not None:
         # The trained weights expect the trained run's scaling; it keeps adapting from there.
         trained.normalizer.set_venv(venv)

@@ -86,6 +86,9 @@ def test_a_python_expression_stays_a_string():
         (["--algo", "dqn"], "allowed: ppo, sac"),
         (["--hyperparams", "learning_rat=1e-3"], "did you mean 'learning_rate'"),
         (["--hyperparams", "learning_rate=[1e-3"], "cannot parse"),
+        (["--hyperparams", "gamma=abc"], "PPO hyper-parameter gamma must be a number, got 'abc'"),
+        (["--hyperparams", "n_steps=64.5"], "n_steps must be an integer, got 64.5"),
+        (["--hyperparams", "use_sde=1"], "use_sde must be true or false, got 1"),
         (
             ["--hyperparams", "policy_kwargs.features_extractor=percept"],
             "did you mean 'perception'",
@@ -119,6 +122,29 @@ def test_bad_flags_exit_with_a_message_naming_the_problem(argv, message, capsys)
         train.main(argv)
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "vec_env, env_kwarg, reason",
+    [
+        ("dummy", "view_budget=-1", "view_budget must be an integer in [1, 64], got -1"),
+        ("dummy", "objects=[no/such.obj]", "'no/such.obj' is not a library object"),
+        # A SubprocVecEnv worker prints its own traceback; the parent says where to look.
+        ("subproc", "view_budget=-1", "a worker process died building it"),
+    ],
+)
+def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
+    vec_env, env_kwarg, reason, tmp_path, capsys
+):
+    run_dir = tmp_path / "run"
+    argv = ["--env-kwargs", env_kwarg, "--vec-env", vec_env, "--run-dir", str(run_dir)]
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(argv)
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert "train.py: error: ViewPlanning-v0 with env kwargs" in error
+    assert reason in error
+    assert not run_dir.exists()
 
 
 def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
