@@ -16,7 +16,7 @@ from pathlib import Path
 
 from agents import run_folder
 from agents.config import ConfigError, closest, require_known
-from agents.evaluation import SB3Policy, make_env, task_for
+from agents.evaluation import ENV_KWARG_ERRORS, SB3Policy, make_env, task_for
 from agents.grasp_baselines import GRASP_BASELINES
 from agents.spaces import describe_space, same_space
 from agents.training import ALGO_CLASSES, check_env_kwargs
@@ -257,7 +257,7 @@ def make_checked_env(contestant: Contestant, **make_kwargs):
     """The contestant's environment, after checking its policy fits it."""
     try:
         env = make_env(contestant.env_id, contestant.env_kwargs, **make_kwargs)
-    except (TypeError, ValueError) as error:
+    except ENV_KWARG_ERRORS as error:
         raise ConfigError(f"{contestant.env_id} with {contestant.env_kwargs}: {error}") from error
     try:
         check_fits(contestant, env)

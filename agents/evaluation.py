@@ -77,6 +77,10 @@ def task_for(env_id: str) -> Task:
     return TASKS[env_id]
 
 
+#: What the environments raise for a kwarg value they refuse (a missing mesh file among them).
+ENV_KWARG_ERRORS = (TypeError, ValueError, FileNotFoundError)
+
+
 def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
     """``gym.make`` with the run's env kwargs. ViewPlanning-v0's registered time limit is the
     default view budget, so a changed ``view_budget`` moves the limit with it."""

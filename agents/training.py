@@ -52,6 +52,7 @@ from agents.curriculum import (
 )
 from agents.demonstrations import check_demonstrations, seed_replay_buffer
 from agents.evaluation import (
+    ENV_KWARG_ERRORS,
     SB3Policy,
     compare_with_baseline,
     format_comparison,
@@ -475,7 +476,7 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
     torch.set_num_threads(config["torch_threads"])
     try:
         venv = build_vec_env(config, run_dir)
-    except (ValueError, TypeError, FileNotFoundError, EOFError, ConnectionError) as error:
+    except (*ENV_KWARG_ERRORS, EOFError, ConnectionError) as error:
         # Env kwargs' names were checked in resolve_config; their values only the env checks.
         if created:
             shutil.rmtree(run_dir, ignore_errors=True)

@@ -234,6 +234,10 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "did you mean 'view_budget'",
         ),
         (["--env", "ViewPlanning-v0", "--episodes", "0"], "--episodes must be at least 1"),
+        (
+            ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "objects=[no/such.obj]"],
+            "mesh file not found: no/such.obj",
+        ),
     ],
 )
 def test_bad_input_exits_with_a_message_naming_the_problem(args, message):
