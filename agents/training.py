@@ -241,6 +241,10 @@ def check_device(device: str) -> str:
 def policy_kwargs(named: Mapping | None) -> dict:
     """The YAML's ``policy_kwargs`` with class names (features extractor, activation)
     replaced by the classes they name."""
+    if named is not None and not isinstance(named, Mapping):
+        raise ConfigError(
+            f"policy_kwargs must be a mapping (policy_kwargs.net_arch=[64, 64]), got {named!r}"
+        )
     kwargs = dict(named or {})
     if "features_extractor" in kwargs:
         name = kwargs.pop("features_extractor")
@@ -472,46 +476,32 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
     )
     created = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
-    run_folder.write_config(run_dir, config)
-    torch.set_num_threads(config["torch_threads"])
     try:
-        venv = build_vec_env(config, run_dir)
-    except (*ENV_KWARG_ERRORS, EOFError, ConnectionError) as error:
-        # Env kwargs' names were checked in resolve_config; their values only the env checks.
-        if created:
+        run_folder.write_config(run_dir, config)
+        torch.set_num_threads(config["torch_threads"])
+        venv = _checked_vec_env(config, run_dir)
+        if trained is not None and trained.normalizer is not None:
+            # The trained weights expect the trained run's scaling; it keeps adapting from there.
+            trained.normalizer.set_venv(venv)
+            trained.normalizer.training = True
+            venv = trained.normalizer
+        elif config["normalize"]:
+            venv = VecNormalize(
+                venv,
+                norm_obs=True,
+                norm_reward=False,
+                norm_obs_keys=vector_keys(venv.observation_space),
+            )
+        model = _checked_model(config, venv, run_dir)
+        if trained is not None:
+            load_trained_weights(model, trained)
+    except ConfigError:
+        if created:  # a refused start leaves nothing behind
             shutil.rmtree(run_dir, ignore_errors=True)
-        reason = str(error)
-        if isinstance(error, (EOFError, ConnectionError)):  # a SubprocVecEnv worker's end
-            reason = "a worker process died building it; --vec-env dummy shows why"
-        raise ConfigError(
-            f"{config['env_id']} with env kwargs {config['env_kwargs']}: {reason}"
-        ) from error
-    if trained is not None and trained.normalizer is not None:
-        # The trained weights expect the trained run's scaling; it keeps adapting from there.
-        trained.normalizer.set_venv(venv)
-        trained.normalizer.training = True
-        venv = trained.normalizer
-    elif config["normalize"]:
-        venv = VecNormalize(
-            venv,
-            norm_obs=True,
-            norm_reward=False,
-            norm_obs_keys=vector_keys(venv.observation_space),
-        )
-    model = ALGO_CLASSES[config["algo"]](
-        config["policy"],
-        venv,
-        seed=config["seed"],
-        device=config["device"],
-        tensorboard_log=_tensorboard_dir(config, run_dir),
-        verbose=0,
-        **algorithm_kwargs(config["hyperparams"]),
-    )
-    if trained is not None:
-        load_trained_weights(model, trained)
-        if trained.replay_buffer is not None:
-            # Its rewards are the trained run's: a changed reward kwarg applies to new ones only.
-            run_folder.use_replay_buffer(model, trained.replay_buffer)
+        raise
+    if trained is not None and trained.replay_buffer is not None:
+        # Its rewards are the trained run's: a changed reward kwarg applies to new ones only.
+        run_folder.use_replay_buffer(model, trained.replay_buffer)
     if config.get("demonstrations"):
         added = seed_replay_buffer(model, config)
         run_folder.write_text_atomically(
@@ -522,6 +512,41 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
         )
     return _learn(model, config, run_dir, progress_bar, resuming=False)
+
+
+def _checked_vec_env(config: dict, run_dir: Path):
+    """``build_vec_env``, with an env kwarg value the env refuses as a ConfigError (their
+    names were checked in resolve_config; their values only the env checks)."""
+    try:
+        return build_vec_env(config, run_dir)
+    except (*ENV_KWARG_ERRORS, EOFError, ConnectionError) as error:
+        reason = str(error)
+        if isinstance(error, (EOFError, ConnectionError)):  # a SubprocVecEnv worker's end
+            reason = "a worker process died building it; --vec-env dummy shows why"
+        raise ConfigError(
+            f"{config['env_id']} with env kwargs {config['env_kwargs']}: {reason}"
+        ) from error
+
+
+def _checked_model(config: dict, venv, run_dir: Path):
+    """The algorithm on ``venv``, with what SB3 refuses while building it (a batch size of
+    0, a ``net_arch`` that is not a list of widths) as a ConfigError."""
+    try:
+        return ALGO_CLASSES[config["algo"]](
+            config["policy"],
+            venv,
+            seed=config["seed"],
+            device=config["device"],
+            tensorboard_log=_tensorboard_dir(config, run_dir),
+            verbose=0,
+            **algorithm_kwargs(config["hyperparams"]),
+        )
+    except (TypeError, ValueError, AssertionError) as error:
+        venv.close()
+        raise ConfigError(
+            f"{config['algo'].upper()} refused its hyper-parameters {config['hyperparams']}: "
+            f"{error}"
+        ) from error
 
 
 @dataclass(frozen=True)

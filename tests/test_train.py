@@ -89,6 +89,7 @@ def test_a_python_expression_stays_a_string():
         (["--hyperparams", "gamma=abc"], "PPO hyper-parameter gamma must be a number, got 'abc'"),
         (["--hyperparams", "n_steps=64.5"], "n_steps must be an integer, got 64.5"),
         (["--hyperparams", "use_sde=1"], "use_sde must be true or false, got 1"),
+        (["--hyperparams", "policy_kwargs=3"], "policy_kwargs must be a mapping"),
         (
             ["--hyperparams", "policy_kwargs.features_extractor=percept"],
             "did you mean 'perception'",
@@ -144,6 +145,23 @@ def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
     error = capsys.readouterr().err
     assert "train.py: error: ViewPlanning-v0 with env kwargs" in error
     assert reason in error
+    assert not run_dir.exists()
+
+
+@pytest.mark.parametrize(
+    "hyperparam, reason",
+    [
+        ("batch_size=0", "`batch_size` must be greater than 1"),
+        ("policy_kwargs.net_arch=abc", "must be tuple of ints"),
+    ],
+)
+def test_a_hyperparameter_sb3_refuses_leaves_no_run_folder(hyperparam, reason, tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(["--hyperparams", hyperparam, "--run-dir", str(run_dir)])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert "train.py: error: PPO refused its hyper-parameters" in error and reason in error
     assert not run_dir.exists()
 
 
