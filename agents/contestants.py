@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agents import run_folder
-from agents.config import ConfigError, closest, require_known
-from agents.evaluation import ENV_KWARG_ERRORS, SB3Policy, make_env, task_for
+from agents.config import closest, require_known
+from agents.evaluation import SB3Policy, make_env, task_for
 from agents.grasp_baselines import GRASP_BASELINES
 from agents.spaces import describe_space, same_space
 from agents.training import ALGO_CLASSES, check_env_kwargs
@@ -254,11 +254,9 @@ def _load(algo: str, model_path: Path, normalizer_path: Path | None) -> SB3Polic
 
 
 def make_checked_env(contestant: Contestant, **make_kwargs):
-    """The contestant's environment, after checking its policy fits it."""
-    try:
-        env = make_env(contestant.env_id, contestant.env_kwargs, **make_kwargs)
-    except ENV_KWARG_ERRORS as error:
-        raise ConfigError(f"{contestant.env_id} with {contestant.env_kwargs}: {error}") from error
+    """The contestant's environment (a ConfigError for kwargs it refuses), after checking its
+    policy fits it."""
+    env = make_env(contestant.env_id, contestant.env_kwargs, **make_kwargs)
     try:
         check_fits(contestant, env)
     except ContestantError:

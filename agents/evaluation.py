@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import run_folder
+from agents.config import ConfigError
 from agents.grasp_baselines import ScriptedGrasp
 from agents.statistics import bootstrap_ci, wilson_interval
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle
@@ -77,10 +78,6 @@ def task_for(env_id: str) -> Task:
     return TASKS[env_id]
 
 
-#: What the environments raise for a kwarg value they refuse (a missing mesh file among them).
-ENV_KWARG_ERRORS = (TypeError, ValueError, FileNotFoundError)
-
-
 def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
     """``gym.make`` with the run's env kwargs. ViewPlanning-v0's registered time limit is the
     default view budget, so a changed ``view_budget`` moves the limit with it."""
@@ -91,7 +88,11 @@ def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
     env_kwargs = dict(env_kwargs or {})
     if env_id == "ViewPlanning-v0" and "view_budget" in env_kwargs:
         make_kwargs.setdefault("max_episode_steps", env_kwargs["view_budget"])
-    return gym.make(env_id, **make_kwargs, **env_kwargs)
+    try:
+        return gym.make(env_id, **make_kwargs, **env_kwargs)
+    except (TypeError, ValueError, FileNotFoundError) as error:
+        # What the envs raise for a kwarg value they refuse (a missing mesh file among them).
+        raise ConfigError(f"{env_id} with env kwargs {env_kwargs}: {error}") from error
 
 
 def compare_with_baseline(

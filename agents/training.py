@@ -52,7 +52,6 @@ from agents.curriculum import (
 )
 from agents.demonstrations import check_demonstrations, seed_replay_buffer
 from agents.evaluation import (
-    ENV_KWARG_ERRORS,
     SB3Policy,
     compare_with_baseline,
     format_comparison,
@@ -515,16 +514,14 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
 
 
 def _checked_vec_env(config: dict, run_dir: Path):
-    """``build_vec_env``, with an env kwarg value the env refuses as a ConfigError (their
-    names were checked in resolve_config; their values only the env checks)."""
+    """``build_vec_env``. An env kwarg value the env refuses is a ConfigError from
+    ``make_env`` in-process; a SubprocVecEnv worker dies of it, and its pipe closes."""
     try:
         return build_vec_env(config, run_dir)
-    except (*ENV_KWARG_ERRORS, EOFError, ConnectionError) as error:
-        reason = str(error)
-        if isinstance(error, (EOFError, ConnectionError)):  # a SubprocVecEnv worker's end
-            reason = "a worker process died building it; --vec-env dummy shows why"
+    except (EOFError, ConnectionError) as error:
         raise ConfigError(
-            f"{config['env_id']} with env kwargs {config['env_kwargs']}: {reason}"
+            f"{config['env_id']} with env kwargs {config['env_kwargs']}: a worker process died "
+            "building it; --vec-env dummy shows why"
         ) from error
 
 
