@@ -72,9 +72,13 @@ def test_unknown_section_is_refused():
 @pytest.mark.slow
 def test_short_soak_of_both_envs_passes_and_reports(tmp_path):
     out = tmp_path / "SOAK.md"
+    # Ten ViewPlanning envs on ten seeds load new objects into the mesh and sample caches
+    # after the one-env warm-up: measured +3.8% to +4.6% here (+2.6% over the full 200-env
+    # soak), too near the 5% default. A leaked GL context or model costs far more than 10%.
     result = run_script(
-        "-m", "benchmarks.soak", "--steps", "400", "--envs", "10", "--out", str(out), check=False
-    )
+        "-m", "benchmarks.soak", "--steps", "400", "--envs", "10", "--max-growth", "0.10",
+        "--out", str(out), check=False,
+    )  # fmt: skip
     assert result.returncode == 0, result.stderr[-3000:]
     runs = json.loads(out.with_suffix(".json").read_text())
     assert [(r["env_id"], "steps" in r) for r in runs] == [
@@ -86,3 +90,9 @@ def test_short_soak_of_both_envs_passes_and_reports(tmp_path):
     soaks = [r for r in runs if "steps" in r]
     assert all(r["steps"] == 400 and r["episodes"] > 1 and not r["non_finite_steps"] for r in soaks)
     assert out.read_text().count("| none |") == 4
+
+
+def test_soak_refuses_a_growth_limit_that_is_not_a_fraction():
+    result = run_script("-m", "benchmarks.soak", "--max-growth", "5", check=False)
+    assert result.returncode == 2
+    assert "--max-growth must be a fraction in (0, 1), got 5.0" in result.stderr
