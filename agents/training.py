@@ -475,6 +475,7 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
     )
     created = not run_dir.exists()
     run_dir.mkdir(parents=True, exist_ok=True)
+    venv = None
     try:
         run_folder.write_config(run_dir, config)
         torch.set_num_threads(config["torch_threads"])
@@ -495,6 +496,8 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         if trained is not None:
             load_trained_weights(model, trained)
     except ConfigError:
+        if venv is not None:
+            venv.close()
         if created:  # a refused start leaves nothing behind
             shutil.rmtree(run_dir, ignore_errors=True)
         raise
@@ -539,7 +542,6 @@ def _checked_model(config: dict, venv, run_dir: Path):
             **algorithm_kwargs(config["hyperparams"]),
         )
     except (TypeError, ValueError, AssertionError) as error:
-        venv.close()
         raise ConfigError(
             f"{config['algo'].upper()} refused its hyper-parameters {config['hyperparams']}: "
             f"{error}"

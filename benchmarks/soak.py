@@ -238,9 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python -m benchmarks.soak " + " ".join(argv if argv is not None else sys.argv[1:])
     args.out.write_text(report(results, command.strip(), args.max_growth))
     args.out.with_suffix(".json").write_text(json.dumps(results, indent=2) + "\n")
-    failures = [
-        (r["env_id"], verdict(r, args.max_growth)) for r in results if verdict(r, args.max_growth)
-    ]
+    failures = [(r["env_id"], found) for r in results if (found := verdict(r, args.max_growth))]
     for env_id, problems in failures:
         print(f"soak FAILED for {env_id}: {'; '.join(problems)}", file=sys.stderr)
     return 1 if failures else 0
