@@ -28,6 +28,8 @@ HARNESS_KEYS = {
     "n_envs": "parallel training environments",
     "policy": "SB3 policy class name (MultiInputPolicy for the Dict observations)",
     "env_kwargs": "keyword arguments of gym.make for training and evaluation",
+    "eval_env_kwargs": "env_kwargs the periodic evaluation changes, e.g. {object_set: validation}"
+    " to choose the best model on shapes it never trained on",
     "normalize": "wrap in VecNormalize (observations only; vector keys only)",
     "demonstrations": "expert episodes put in SAC's replay buffer first (agents/demonstrations.py)",
     "start_curriculum": "training episodes that start near the handle (agents/curriculum.py)",

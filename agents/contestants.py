@@ -268,7 +268,6 @@ def make_checked_env(contestant: Contestant, **make_kwargs):
 # ---------------------------------------------------------------------- assembling
 #: Env kwargs naming a task's evaluation split, and the split evaluate.py uses by default.
 SPLIT_KWARGS = {"ViewPlanning-v0": "object_set", "InstrumentGrasp-v0": "instrument_set"}
-EXPLICIT_SCENE_KWARGS = {"ViewPlanning-v0": "objects", "InstrumentGrasp-v0": "instruments"}
 DEFAULT_SPLIT = "held_out"
 
 
@@ -326,7 +325,7 @@ def build_contestants(
             contestants.append(baseline_contestant(name, current, scene))
     for contestant in contestants:
         key = SPLIT_KWARGS[contestant.env_id]
-        if EXPLICIT_SCENE_KWARGS[contestant.env_id] not in contestant.env_kwargs:
+        if task_for(contestant.env_id).explicit_scene_kwarg not in contestant.env_kwargs:
             contestant.env_kwargs[key] = splits.get(contestant.env_id, DEFAULT_SPLIT)
     unique_labels(contestants)
     return contestants

@@ -33,6 +33,8 @@ class Task:
     metric: str  #: ``info`` key of the per-episode headline figure, read at the episode's end
     metric_label: str
     held_out_kwargs: Mapping  #: env kwargs selecting the held-out split
+    #: the env kwarg listing a scene's items explicitly, which overrides any split
+    explicit_scene_kwarg: str
     baseline: str
     make_baseline: Callable
     #: kwargs the baseline's env needs on top of the run's (e.g. the camera it reads)
@@ -49,6 +51,7 @@ TASKS = {
         metric="coverage",
         metric_label="final coverage",
         held_out_kwargs={"object_set": "held_out"},
+        explicit_scene_kwarg="objects",
         baseline="four-view",
         make_baseline=FourViewpointBaseline,
         extra_metrics=("is_success",),
@@ -59,6 +62,7 @@ TASKS = {
         metric="is_success",
         metric_label="success rate",
         held_out_kwargs={"instrument_set": "held_out"},
+        explicit_scene_kwarg="instruments",
         baseline="scripted-grasp",
         make_baseline=ScriptedGrasp,
         baseline_env_kwargs=ScriptedGrasp.ENV_KWARGS,
@@ -95,6 +99,14 @@ def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
         raise ConfigError(f"{env_id} with env kwargs {env_kwargs}: {error}") from error
 
 
+def held_out_env_kwargs(env_id: str, env_kwargs: Mapping) -> dict:
+    """A run's env kwargs moved onto the held-out split; a run trained on an explicit list of
+    objects (or instruments) is still compared on the held-out split, not on its own list."""
+    task = task_for(env_id)
+    kept = {key: value for key, value in env_kwargs.items() if key != task.explicit_scene_kwarg}
+    return {**kept, **task.held_out_kwargs}
+
+
 def compare_with_baseline(
     env_id: str,
     policy,
@@ -106,7 +118,7 @@ def compare_with_baseline(
     """``policy``, the task's scripted baseline and (if ``reference`` and the task has one)
     its privileged reference, on the same held-out seeded episodes."""
     task = task_for(env_id)
-    held_out = {**env_kwargs, **task.held_out_kwargs}
+    held_out = held_out_env_kwargs(env_id, env_kwargs)
     seeds = range(seed, seed + episodes)
     keys = (task.metric, *task.extra_metrics)
 

@@ -119,6 +119,12 @@ def resolve_config(
     harness, algo_kwargs = split_hyperparams(merged, ALGO_CLASSES[algo])
     merged_env_kwargs = deep_update(harness.get("env_kwargs") or {}, env_kwargs or {})
     check_env_kwargs(env_id, merged_env_kwargs)
+    eval_env_kwargs = harness.get("eval_env_kwargs") or {}
+    if not isinstance(eval_env_kwargs, Mapping):
+        raise ConfigError(
+            f"eval_env_kwargs must be a mapping of env kwargs, got {eval_env_kwargs!r}"
+        )
+    check_env_kwargs(env_id, eval_env_kwargs)
     config = {
         "env_id": env_id,
         "algo": algo,
@@ -135,6 +141,7 @@ def resolve_config(
         "demonstrations": check_demonstrations(env_id, algo, harness.get("demonstrations")),
         "start_curriculum": check_start_curriculum(env_id, harness.get("start_curriculum")),
         "env_kwargs": merged_env_kwargs,
+        "eval_env_kwargs": dict(eval_env_kwargs),
         "hyperparams": algo_kwargs,
         "eval_freq": int_at_least("eval-freq", eval_freq, minimum=0),
         "eval_episodes": int_at_least("eval-episodes", eval_episodes),
@@ -401,7 +408,8 @@ def _raise_if_requested() -> None:
 
 
 class PeriodicEvaluation(_Periodic):
-    """Evaluates the current policy on its own env every ``every`` steps, appends a row to
+    """Evaluates the current policy on its own env (the training env's kwargs with the
+    config's ``eval_env_kwargs`` over them) every ``every`` steps, appends a row to
     ``evaluations.csv`` and keeps the best model (by mean return) as ``best_model.zip``.
     The caller closes :attr:`env`."""
 
@@ -409,7 +417,9 @@ class PeriodicEvaluation(_Periodic):
         super().__init__(every)
         self.run_dir = run_dir
         self.task = task_for(config["env_id"])
-        self.env = make_env(config["env_id"], config["env_kwargs"])
+        # Runs from before eval_env_kwargs existed lack the key.
+        env_kwargs = deep_update(config["env_kwargs"], config.get("eval_env_kwargs") or {})
+        self.env = make_env(config["env_id"], env_kwargs)
         first_seed = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
         self.seeds = range(first_seed, first_seed + config["eval_episodes"])
         history = run_folder.read_evaluations(run_dir)

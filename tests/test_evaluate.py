@@ -292,3 +292,38 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
     assert (
         contestants[0]["episodes"][0]["instrument"] == contestants[1]["episodes"][0]["instrument"]
     )
+
+
+def test_the_split_flags_offer_exactly_the_envs_splits():
+    import evaluate
+    from liuxing_envs.sim.instruments import INSTRUMENT_SETS
+    from liuxing_envs.sim.objects import OBJECT_SETS
+
+    assert evaluate.OBJECT_SPLITS == tuple(OBJECT_SETS)
+    assert evaluate.INSTRUMENT_SPLITS == tuple(INSTRUMENT_SETS)
+
+
+@pytest.mark.parametrize(
+    "env_id, scene_kwarg, trained_on, other_kwarg",
+    [
+        ("ViewPlanning-v0", "objects", ["box", "bench"], ("view_budget", 3)),
+        ("InstrumentGrasp-v0", "instruments", ["scalpel"], ("force_limit", 4.0)),
+    ],
+)
+def test_a_run_trained_on_a_list_of_items_is_compared_on_the_held_out_split(
+    env_id, scene_kwarg, trained_on, other_kwarg
+):
+    from agents.evaluation import held_out_env_kwargs, make_env
+    from liuxing_envs.sim.instruments import INSTRUMENT_SETS
+    from liuxing_envs.sim.objects import OBJECT_SETS
+
+    key, value = other_kwarg
+    env = make_env(env_id, held_out_env_kwargs(env_id, {scene_kwarg: trained_on, key: value}))
+    try:
+        if scene_kwarg == "objects":
+            assert env.unwrapped.object_names == OBJECT_SETS["held_out"]
+        else:
+            assert tuple(env.unwrapped.instrument_names) == INSTRUMENT_SETS["held_out"]
+        assert getattr(env.unwrapped, key) == value  # the run's other kwargs stay
+    finally:
+        env.close()

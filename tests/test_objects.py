@@ -20,7 +20,9 @@ from liuxing_envs.sim.objects import (
     surface_samples,
 )
 
-MULTI_PART = ("mug", "table", "chair", "stacked_blocks", "t_pipe", "step_pyramid")
+MULTI_PART = (
+    "mug", "table", "chair", "stacked_blocks", "t_pipe", "step_pyramid", "ring_stand", "stool",
+)  # fmt: skip
 
 
 def _legacy(vertices: np.ndarray, faces: np.ndarray) -> o3d.geometry.TriangleMesh:
@@ -122,9 +124,10 @@ def test_library_compiles_as_mujoco_mesh_geoms():
 
 def test_split_is_fixed_disjoint_and_covers_the_library():
     train, held_out = set(OBJECT_SETS["train"]), set(OBJECT_SETS["held_out"])
-    assert not train & held_out
-    assert train | held_out == set(OBJECT_NAMES) == set(OBJECT_SETS["all"])
-    assert len(train) >= 10 and len(held_out) >= 5
+    validation = set(OBJECT_SETS["validation"])
+    assert not train & held_out and not train & validation and not validation & held_out
+    assert train | validation | held_out == set(OBJECT_NAMES) == set(OBJECT_SETS["all"])
+    assert len(train) >= 10 and len(held_out) >= 5 and len(validation) >= 3
     # Held out: families with no member in train.
     assert {"torus", "chair", "arch"} <= held_out
 

@@ -95,6 +95,11 @@ def test_a_python_expression_stays_a_string():
             "did you mean 'perception'",
         ),
         (["--env-kwargs", "view_budgt=3"], "did you mean 'view_budget'"),
+        (["--hyperparams", "eval_env_kwargs=validation"], "eval_env_kwargs must be a mapping"),
+        (
+            ["--hyperparams", "eval_env_kwargs={object_st: validation}"],
+            "did you mean 'object_set'",
+        ),
         (["--vec-env", "subprocess"], "did you mean 'subproc'"),
         (["-n", "0"], "timesteps must be an integer >= 1"),
         (["--config", "no/such/file.yml"], "does not exist"),
@@ -173,6 +178,28 @@ def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
     assert (
         "has no entry for 'ViewPlanning-v0'; it has: InstrumentGrasp-v0" in capsys.readouterr().err
     )
+
+
+def test_the_periodic_evaluation_can_choose_the_best_model_on_other_objects(tmp_path):
+    from agents.training import PeriodicEvaluation, resolve_config
+    from liuxing_envs.sim.objects import OBJECT_SETS
+
+    config = resolve_config(
+        hyperparams=parse_assignments(
+            ["eval_env_kwargs={object_set: validation}"], "--hyperparams"
+        ),
+        env_kwargs={"view_budget": 3},
+    )
+    training_env = make_env(config["env_id"], config["env_kwargs"])
+    evaluation = PeriodicEvaluation(config, tmp_path, every=100)
+    try:
+        assert training_env.unwrapped.object_names == OBJECT_SETS["train"]
+        assert evaluation.env.unwrapped.object_names == OBJECT_SETS["validation"]
+        # Everything else is the training env's.
+        assert evaluation.env.unwrapped.view_budget == 3
+    finally:
+        training_env.close()
+        evaluation.env.close()
 
 
 # --- end to end ------------------------------------------------------------------------------

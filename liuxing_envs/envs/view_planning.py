@@ -51,7 +51,7 @@ from liuxing_envs.sim.scene import (
 from liuxing_envs.sim.viewpoints import look_at, sphere_point
 
 ACTION_MODES = ("continuous", "discrete")
-OBJECT_SET_NAMES = ("train", "held_out", "all")
+OBJECT_SET_NAMES = tuple(OBJECT_SETS)
 
 DEFAULT_VIEW_BUDGET = 4
 DEFAULT_OBJECT_SET = "train"
@@ -185,7 +185,8 @@ class ViewPlanningEnv(gym.Env):
     bounding-box diagonal.
 
     **Arguments** (all keyword): ``view_budget``, ``action_mode``, ``motion``
-    ({"kinematic", "dynamic"}), ``object_set`` ({"train", "held_out", "all"}), ``objects``
+    ({"kinematic", "dynamic"}), ``object_set`` ({"train", "validation", "held_out", "all"};
+    validation families are for choosing a model, held-out ones for reporting it), ``objects``
     (list of library names or mesh files .obj/.stl/.ply, scaled to ``USER_MESH_SIZE``; overrides
     ``object_set``), ``scales``, ``object_region``, ``resolution`` (square depth image side),
     ``depth_backend`` ({"auto", "gl", "raycast"}), ``depth_noise`` (a ``DepthNoise`` or None),
@@ -200,7 +201,8 @@ class ViewPlanningEnv(gym.Env):
     object takes part in the arm's collision checks (before, paths could pass through it;
     only refusals and detours change), and ``info["sim_unstable"]``. Added within v0
     (2026-11-22, off by default, so existing observations are unchanged):
-    ``observe_free_space``.
+    ``observe_free_space``; ``object_set="validation"`` (four new families: bench, c_channel,
+    ring_stand, stool; ``"train"`` and ``"held_out"`` are unchanged, ``"all"`` now has them).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}

@@ -87,7 +87,7 @@ DEFAULT_TABLE_HALF_SIZE = 10.0
 DEFAULT_TABLE_THICKNESS = 0.02
 
 #: Cached (object, scale, ...) ground truths; the environment uses a handful of scales for
-#: each of ~18 objects, each entry ~0.4 MB at 8192 samples.
+#: each of ~22 objects, each entry ~0.4 MB at 8192 samples.
 OBSERVABLE_CACHE_SIZE = 128
 
 # Library tessellation.
@@ -617,6 +617,57 @@ def _make_bunny() -> ObjectMesh:
     return _assemble("bunny", [(vertices, faces)])
 
 
+# Validation families: chosen like the held-out ones (each hides part of its surface in a
+# way no train object does), but used only to pick a model during training, so the
+# held-out score stays an unbiased test.
+
+
+def _make_bench() -> ObjectMesh:
+    # A plank on two panel legs: a low, wide tunnel open at both ends.
+    width, height, top, leg, depth = 0.16, 0.07, 0.012, 0.012, 0.06
+    inner = width / 2 - leg
+    outline = [
+        (-width / 2, 0), (-inner, 0), (-inner, height - top), (inner, height - top),
+        (inner, 0), (width / 2, 0), (width / 2, height), (-width / 2, height),
+    ]  # fmt: skip
+    return _assemble("bench", [_extrude(outline, depth)])
+
+
+def _make_c_channel() -> ObjectMesh:
+    # A C-section standing on one flange, lips turned in: the inside is seen only through
+    # the slot between the lips, from one side.
+    width, height, wall, lip = 0.09, 0.14, 0.012, 0.035
+    outline = [
+        (0, 0), (width, 0), (width, lip), (width - wall, lip), (width - wall, wall),
+        (wall, wall), (wall, height - wall), (width - wall, height - wall),
+        (width - wall, height - lip), (width, height - lip), (width, height), (0, height),
+    ]  # fmt: skip
+    return _assemble("c_channel", [_extrude(outline, 0.05)])
+
+
+def _make_ring_stand() -> ObjectMesh:
+    # An upright ring on a foot: its inner wall is seen only from views near its axis.
+    major, minor, foot = 0.045, 0.01, (0.07, 0.04, 0.012)
+    angle = 2.0 * np.pi * np.arange(20) / 20
+    loop = np.column_stack([major + minor * np.cos(angle), minor * np.sin(angle)])
+    ring = _swap_axes(_revolve(loop, closed=True), (0, 2, 1), (0, 0, foot[2] / 2 + major + minor))
+    return _assemble("ring_stand", [_box(foot, (0, 0, foot[2] / 2)), ring])
+
+
+def _make_stool() -> ObjectMesh:
+    # A round seat on three thin legs that end inside it.
+    seat_radius, seat, height, leg_radius, leg_offset = 0.05, 0.012, 0.09, 0.006, 0.034
+    bottom = height - seat
+    parts = [_revolve([(0, bottom), (seat_radius, bottom), (seat_radius, height), (0, height)])]
+    for angle in 2.0 * np.pi * np.arange(3) / 3 + np.pi / 2:
+        vertices, faces = _revolve(
+            [(0, 0), (leg_radius, 0), (leg_radius, height - seat / 2), (0, height - seat / 2)], 12
+        )
+        offset = leg_offset * np.array([np.cos(angle), np.sin(angle), 0.0])
+        parts.append((vertices + offset, faces))
+    return _assemble("stool", parts)
+
+
 _BUILDERS: dict[str, Callable[[], ObjectMesh]] = {
     "box": _make_box,
     "cylinder": _make_cylinder,
@@ -636,6 +687,10 @@ _BUILDERS: dict[str, Callable[[], ObjectMesh]] = {
     "t_pipe": _make_t_pipe,
     "step_pyramid": _make_step_pyramid,
     "open_box": _make_open_box,
+    "bench": _make_bench,
+    "c_channel": _make_c_channel,
+    "ring_stand": _make_ring_stand,
+    "stool": _make_stool,
 }
 
 OBJECT_NAMES: tuple[str, ...] = tuple(_BUILDERS)
@@ -650,9 +705,17 @@ OBJECT_NAMES: tuple[str, ...] = tuple(_BUILDERS)
 # Train keeps one member of each remaining family: convex primitives (box, cylinder, cone,
 # obelisk), shells of revolution (mug, bowl, vase), a container (open_box), legged furniture
 # (table), stacks (stacked_blocks, step_pyramid), a bracket (l_bracket) and a free-form blob.
+# Validation (for choosing a model during training, never for the reported score): four more
+# families with no member in train or held out, each hiding surface in its own way:
+# - bench: a low tunnel under a plank (a train table has legs, not panels);
+# - c_channel: a cavity seen only through a slot on one side;
+# - ring_stand: an upright ring whose inner wall faces along one horizontal axis;
+# - stool: a round seat on three thin legs, its underside seen only from low views.
 _HELD_OUT = ("torus", "chair", "arch", "u_bracket", "t_pipe")
+_VALIDATION = ("bench", "c_channel", "ring_stand", "stool")
 OBJECT_SETS: dict[str, tuple[str, ...]] = {
-    "train": tuple(name for name in OBJECT_NAMES if name not in _HELD_OUT),
+    "train": tuple(name for name in OBJECT_NAMES if name not in _HELD_OUT + _VALIDATION),
+    "validation": _VALIDATION,
     "held_out": _HELD_OUT,
     "all": OBJECT_NAMES,
 }
