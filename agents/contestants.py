@@ -16,7 +16,7 @@ from pathlib import Path
 
 from agents import run_folder
 from agents.config import closest, require_known
-from agents.evaluation import SB3Policy, make_env, task_for
+from agents.evaluation import HELD_OUT_SPLIT, SB3Policy, make_env, task_for
 from agents.grasp_baselines import GRASP_BASELINES
 from agents.spaces import describe_space, same_space
 from agents.training import ALGO_CLASSES, check_env_kwargs
@@ -266,9 +266,6 @@ def make_checked_env(contestant: Contestant, **make_kwargs):
 
 
 # ---------------------------------------------------------------------- assembling
-#: Env kwargs naming a task's evaluation split, and the split evaluate.py uses by default.
-SPLIT_KWARGS = {"ViewPlanning-v0": "object_set", "InstrumentGrasp-v0": "instrument_set"}
-DEFAULT_SPLIT = "held_out"
 
 
 def build_contestants(
@@ -324,8 +321,8 @@ def build_contestants(
         for name in wanted:
             contestants.append(baseline_contestant(name, current, scene))
     for contestant in contestants:
-        key = SPLIT_KWARGS[contestant.env_id]
-        if task_for(contestant.env_id).explicit_scene_kwarg not in contestant.env_kwargs:
-            contestant.env_kwargs[key] = splits.get(contestant.env_id, DEFAULT_SPLIT)
+        task = task_for(contestant.env_id)
+        if task.explicit_scene_kwarg not in contestant.env_kwargs:
+            contestant.env_kwargs[task.split_kwarg] = splits.get(contestant.env_id, HELD_OUT_SPLIT)
     unique_labels(contestants)
     return contestants

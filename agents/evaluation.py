@@ -24,6 +24,8 @@ from agents.view_baselines import FourViewpointBaseline, GreedyOracle
 #: Evaluation seeds start here, away from the training (``seed``) and periodic-evaluation
 #: (``seed + PERIODIC_EVAL_SEED_OFFSET``) streams.
 FINAL_EVAL_SEED = 1_000_000
+#: The split every final comparison and, by default, evaluate.py reports.
+HELD_OUT_SPLIT = "held_out"
 
 
 @dataclass(frozen=True)
@@ -32,7 +34,7 @@ class Task:
 
     metric: str  #: ``info`` key of the per-episode headline figure, read at the episode's end
     metric_label: str
-    held_out_kwargs: Mapping  #: env kwargs selecting the held-out split
+    split_kwarg: str  #: the env kwarg naming a split of the scene library
     #: the env kwarg listing a scene's items explicitly, which overrides any split
     explicit_scene_kwarg: str
     baseline: str
@@ -45,12 +47,17 @@ class Task:
     reference: str | None = None
     make_reference: Callable | None = None
 
+    @property
+    def held_out_kwargs(self) -> dict:
+        """Env kwargs selecting the held-out split."""
+        return {self.split_kwarg: HELD_OUT_SPLIT}
+
 
 TASKS = {
     "ViewPlanning-v0": Task(
         metric="coverage",
         metric_label="final coverage",
-        held_out_kwargs={"object_set": "held_out"},
+        split_kwarg="object_set",
         explicit_scene_kwarg="objects",
         baseline="four-view",
         make_baseline=FourViewpointBaseline,
@@ -61,7 +68,7 @@ TASKS = {
     "InstrumentGrasp-v0": Task(
         metric="is_success",
         metric_label="success rate",
-        held_out_kwargs={"instrument_set": "held_out"},
+        split_kwarg="instrument_set",
         explicit_scene_kwarg="instruments",
         baseline="scripted-grasp",
         make_baseline=ScriptedGrasp,
@@ -131,7 +138,7 @@ def compare_with_baseline(
 
     result = {
         "env_id": env_id,
-        "split": dict(task.held_out_kwargs),
+        "split": task.held_out_kwargs,
         "metric": task.metric_label,
         "seeds": [seeds.start, seeds.stop - 1],
         "policy": evaluate(lambda env: policy),

@@ -17,8 +17,7 @@ import numpy as np  # noqa: E402
 
 from agents.statistics import bootstrap_ci  # noqa: E402
 from agents.view_baselines import BASELINES  # noqa: E402
-from liuxing_envs.envs.view_planning import ViewPlanningEnv  # noqa: E402
-from liuxing_envs.sim.objects import OBJECT_SETS  # noqa: E402
+from liuxing_envs.envs.view_planning import OBJECT_SET_NAMES, ViewPlanningEnv  # noqa: E402
 
 
 def run(baseline: str, episodes: int, object_set: str, budget: int) -> dict:
@@ -49,7 +48,7 @@ def run(baseline: str, episodes: int, object_set: str, budget: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=50)
-    parser.add_argument("--object-set", choices=tuple(OBJECT_SETS), default="held_out")
+    parser.add_argument("--object-set", choices=OBJECT_SET_NAMES, default="held_out")
     parser.add_argument("--budget", type=int, default=4)
     args = parser.parse_args()
     print(
