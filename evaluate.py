@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     for flag in ("episodes", "video_episodes"):
         if getattr(args, flag) < 1:
             parser.error(f"--{flag.replace('_', '-')} must be at least 1")
-    for flag in ("reconstruct_episodes", "save_reconstructions"):
+    for flag in ("seed", "reconstruct_episodes", "save_reconstructions"):
         if getattr(args, flag) < 0:
             parser.error(f"--{flag.replace('_', '-')} must be 0 or more")
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.

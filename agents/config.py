@@ -137,13 +137,23 @@ def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
     return result
 
 
+#: Algorithm kwargs that default to None (off) and otherwise take a number.
+OPTIONAL_NUMBERS = ("target_kl", "clip_range_vf")
+#: Algorithm kwargs that train.py sets from its own flags.
+SET_BY_FLAGS = {"seed": "--seed", "device": "--device", "tensorboard_log": "--tensorboard"}
+
+
 def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
     """A value of the kind the algorithm's own default has, so ``gamma=abc`` fails here with
     its name instead of as a tensor error minutes into training. Only scalars are checked:
-    a list is one of SB3's tuple forms (``train_freq: [1, episode]``), and a None default
-    (``target_kl``) leaves the kind open."""
-    if isinstance(value, (list, tuple, dict)) or default is None:
+    a list is one of SB3's tuple forms (``train_freq: [1, episode]``). A None default leaves
+    the kind open, except for the numbers that default to off (``target_kl``)."""
+    if isinstance(value, (list, tuple, dict)) or value is None and default is None:
         return
+    if default is None:
+        if key not in OPTIONAL_NUMBERS:
+            return
+        default = 0.0
     if isinstance(default, bool):
         if not isinstance(value, bool):
             raise ConfigError(
@@ -172,16 +182,21 @@ def deep_update(base: Mapping, overrides: Mapping) -> dict:
 
 def load_yaml(path: str | Path) -> dict:
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"config file {str(path)!r} is a folder; give a YAML file")
     if not path.is_file():
         raise ConfigError(f"config file {str(path)!r} does not exist")
     try:
         content = safe_load(path.read_text())
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise ConfigError(f"config file {str(path)!r} is not valid YAML: {error}") from error
     if content is None:
         return {}
     if not isinstance(content, dict):
         raise ConfigError(f"config file {str(path)!r} must hold a mapping, got {type(content)}")
+    odd = [key for key in content if not isinstance(key, str)]
+    if odd:
+        raise ConfigError(f"config file {str(path)!r} has keys that are not names: {odd}")
     return content
 
 
@@ -211,13 +226,19 @@ def split_hyperparams(hyperparams: Mapping, algo_class: type) -> tuple[dict, dic
     do values of the wrong kind (see :func:`check_hyperparam_value`)."""
     parameters = inspect.signature(algo_class.__init__).parameters
     accepted = [
-        name for name in parameters if name not in ("self", "policy", "env", "_init_setup_model")
+        name
+        for name in parameters
+        if name not in ("self", "policy", "env", "_init_setup_model", "verbose", *SET_BY_FLAGS)
     ]
     allowed = sorted(set(accepted) | set(HARNESS_KEYS))
     harness, algo_kwargs = {}, {}
     for key, value in hyperparams.items():
         if key in HARNESS_KEYS:
             harness[key] = value
+        elif key in SET_BY_FLAGS:
+            raise ConfigError(
+                f"{key} is not a hyper-parameter here: set it with {SET_BY_FLAGS[key]}"
+            )
         elif key in accepted:
             check_hyperparam_value(algo_class.__name__, key, value, parameters[key].default)
             algo_kwargs[key] = value

@@ -122,7 +122,13 @@ def policy_contestant(
             raise ContestantError(
                 f"{str(path)!r} is not in a run folder, so its environment is unknown: pass --env"
             )
-        algo = algo or _algo_in_zip(model_path)
+        saved_by = _algo_in_zip(model_path)
+        if algo is not None and algo != saved_by:
+            raise ContestantError(
+                f"{str(model_path)!r} was saved by {saved_by}, not {algo}: drop --algo or "
+                f"pass --algo {saved_by}"
+            )
+        algo = saved_by
         env_kwargs, normalize, seed = {}, False, None
     if normalize and (normalizer_path is None or not normalizer_path.is_file()):
         raise ContestantError(
@@ -228,21 +234,27 @@ def _normalizer_beside(model_path: Path, run_dir: Path | None) -> Path | None:
     return model_path.parent / run_folder.FINAL_NORMALIZER
 
 
+#: A hyper-parameter only this algorithm saves in an SB3 zip's ``data``. The policy class
+#: does not tell: PPO's lives in ``stable_baselines3.common.policies``, as A2C's does.
+_ALGO_SIGNATURES = {"ppo": "clip_range", "sac": "target_entropy"}
+
+
 def _algo_in_zip(model_path: Path) -> str:
-    """SB3 zips record their policy class's module, e.g. ``stable_baselines3.sac.policies``."""
+    """The algorithm that saved an SB3 model zip, read from its ``data`` record."""
     try:
         with zipfile.ZipFile(model_path) as archive:
             data = json.loads(archive.read("data"))
         module = data["policy_class"]["__module__"]
-    except (zipfile.BadZipFile, KeyError, ValueError, OSError) as error:
+    except (zipfile.BadZipFile, KeyError, ValueError, TypeError, OSError) as error:
         raise ContestantError(
             f"{str(model_path)!r} is not a stable-baselines3 model zip ({error})"
         ) from error
-    for algo in ALGO_CLASSES:
-        if f".{algo}." in module:
+    for algo, key in _ALGO_SIGNATURES.items():
+        if key in data:
             return algo
     raise ContestantError(
-        f"{str(model_path)!r} holds a {module} policy; evaluate.py knows {', '.join(ALGO_CLASSES)}"
+        f"{str(model_path)!r} holds a {module} policy of an algorithm evaluate.py does not "
+        f"know; it knows {', '.join(ALGO_CLASSES)}"
     )
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import plotting, run_folder
-from agents.contestants import Contestant, check_fits, make_checked_env, slug
+from agents.contestants import Contestant, ContestantError, check_fits, make_checked_env, slug
 from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
 from agents.recorders import COVERAGE_LEVELS, GraspRecorder, ViewPlanningRecorder
 from agents.statistics import (
@@ -60,7 +60,12 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     started = time.perf_counter()
     envs = _open_envs(contestants)  # fails on a misfit model before any episode runs
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        for env in envs.values():
+            env.close()
+        raise ContestantError(f"cannot make the report folder {str(out)!r}: {error}") from error
     seeds = range(settings.seed, settings.seed + settings.episodes)
     progress = _progress_bar(len(contestants) * settings.episodes, settings.progress)
     results = []

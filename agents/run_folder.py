@@ -256,12 +256,15 @@ def read_curriculum_state(path: Path) -> dict | None:
 
 
 def write_config(run_dir: Path, config: dict) -> None:
-    document = {
-        **config,
-        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-        "versions": library_versions(),
-        "git_commit": git_commit(),
-    }
+    """Writes ``config`` with this process's command line, library versions and commit. A
+    config read back from a run (resuming) keeps its first command and lists the later ones
+    under ``resume_commands``."""
+    command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])
+    if "command" in config:
+        later = {"resume_commands": [*config.get("resume_commands", []), command]}
+    else:
+        later = {"command": command}
+    document = {**config, **later, "versions": library_versions(), "git_commit": git_commit()}
     write_text_atomically(Path(run_dir) / CONFIG, yaml.safe_dump(document, sort_keys=False))
 
 

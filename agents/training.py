@@ -117,14 +117,16 @@ def resolve_config(
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
     merged = deep_update(default_hyperparams(algo, env_id, config_file), hyperparams or {})
     harness, algo_kwargs = split_hyperparams(merged, ALGO_CLASSES[algo])
+    for key in ("env_kwargs", "eval_env_kwargs"):
+        if not isinstance(harness.get(key) or {}, Mapping):
+            raise ConfigError(f"{key} must be a mapping of env kwargs, got {harness[key]!r}")
     merged_env_kwargs = deep_update(harness.get("env_kwargs") or {}, env_kwargs or {})
     check_env_kwargs(env_id, merged_env_kwargs)
     eval_env_kwargs = harness.get("eval_env_kwargs") or {}
-    if not isinstance(eval_env_kwargs, Mapping):
-        raise ConfigError(
-            f"eval_env_kwargs must be a mapping of env kwargs, got {eval_env_kwargs!r}"
-        )
     check_env_kwargs(env_id, eval_env_kwargs)
+    normalize = harness.get("normalize", False)
+    if not isinstance(normalize, bool):
+        raise ConfigError(f"normalize must be true or false, got {normalize!r}")
     config = {
         "env_id": env_id,
         "algo": algo,
@@ -137,7 +139,7 @@ def resolve_config(
         ),
         "vec_env": vec_env,
         "policy": harness.get("policy", "MultiInputPolicy"),
-        "normalize": bool(harness.get("normalize", False)),
+        "normalize": normalize,
         "demonstrations": check_demonstrations(env_id, algo, harness.get("demonstrations")),
         "start_curriculum": check_start_curriculum(env_id, harness.get("start_curriculum")),
         "env_kwargs": merged_env_kwargs,
@@ -484,8 +486,11 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         else None
     )
     created = not run_dir.exists()
-    run_dir.mkdir(parents=True, exist_ok=True)
-    venv = None
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ConfigError(f"cannot make the run folder {str(run_dir)!r}: {error}") from error
+    venv = evaluation = None
     try:
         run_folder.write_config(run_dir, config)
         torch.set_num_threads(config["torch_threads"])
@@ -502,13 +507,15 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
                 norm_reward=False,
                 norm_obs_keys=vector_keys(venv.observation_space),
             )
+        evaluation = _periodic_evaluation(config, run_dir, venv)
         model = _checked_model(config, venv, run_dir)
         if trained is not None:
             load_trained_weights(model, trained)
-    except ConfigError:
-        if venv is not None:
-            venv.close()
-        if created:  # a refused start leaves nothing behind
+    except BaseException:  # refused, or interrupted before a single step: nothing to keep
+        for opened in (venv, evaluation and evaluation.env):
+            if opened is not None:
+                opened.close()
+        if created:
             shutil.rmtree(run_dir, ignore_errors=True)
         raise
     if trained is not None and trained.replay_buffer is not None:
@@ -523,7 +530,25 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             f"replay buffer seeded with {added['transitions']} transitions of "
             f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
         )
-    return _learn(model, config, run_dir, progress_bar, resuming=False)
+    return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
+
+
+def _periodic_evaluation(config: dict, run_dir: Path, venv) -> PeriodicEvaluation | None:
+    """The run's periodic evaluation (None when off), its env checked to have the training
+    env's spaces: ``eval_env_kwargs`` such as another ``view_budget`` would otherwise fail
+    at the first evaluation, with the training so far lost."""
+    if not config["eval_freq"]:
+        return None
+    evaluation = PeriodicEvaluation(config, run_dir, config["eval_freq"])
+    env = evaluation.env
+    if (env.observation_space, env.action_space) != (venv.observation_space, venv.action_space):
+        env.close()
+        raise ConfigError(
+            f"eval_env_kwargs {config.get('eval_env_kwargs')} give the evaluation env other "
+            "observation or action spaces than the training env's; the policy could not act "
+            "in it"
+        )
+    return evaluation
 
 
 def _checked_vec_env(config: dict, run_dir: Path):
@@ -641,14 +666,23 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     may raise the run's total; ``overrides`` may change ``device`` or ``final_episodes``."""
     run_dir = Path(run_dir)
     config = run_folder.read_config(run_dir)
+    require_known("environment", config["env_id"], liuxing_envs.ENV_IDS)
+    require_known("algorithm", config["algo"], ALGOS)
     steps = run_folder.latest_checkpoint(run_dir)
     if steps is None:
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no checkpoint to resume from")
     if n_timesteps is not None:
         config["n_timesteps"] = int_at_least("timesteps", n_timesteps)
+    checks = {
+        "device": check_device,
+        "final_episodes": lambda value: int_at_least("final-episodes", value, minimum=0),
+        "torch_threads": lambda value: int_at_least("torch-threads", value),
+    }
     for key, value in overrides.items():
+        if key not in checks:
+            raise ConfigError(f"resuming cannot change {key}; it can change {', '.join(checks)}")
         if value is not None:
-            config[key] = value
+            config[key] = checks[key](value)
     config["device"] = check_device(config.get("device", "auto"))
     # Checked again: a hand-edited config.yml is caught, and an older run folder's entry gets
     # the settings added since with their defaults.
@@ -660,11 +694,12 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
             f"{str(run_dir)!r} already reached {steps} of its {config['n_timesteps']} steps; "
             "pass a larger --timesteps to continue it"
         )
-    run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
     paths = run_folder.checkpoint_paths(run_dir, steps)
     torch.set_num_threads(config.get("torch_threads", DEFAULT_TORCH_THREADS))
-    venv = build_vec_env(config, run_dir)
+    monitors_before = set((run_dir / run_folder.MONITOR).glob("*"))
+    venv = evaluation = None
     try:
+        venv = build_vec_env(config, run_dir)
         if config["normalize"]:
             normalizer = run_folder.load_normalizer(paths["normalizer"])
             normalizer.set_venv(venv)
@@ -687,12 +722,26 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
                 file=sys.stderr,
             )
         curriculum_state = run_folder.read_curriculum_state(paths["curriculum"])
-    except run_folder.RunFolderError:
-        venv.close()
+        evaluation = _periodic_evaluation(config, run_dir, venv)
+    except BaseException:  # refused: the run folder is left as it was
+        for opened in (venv, evaluation and evaluation.env):
+            if opened is not None:
+                opened.close()
+        for path in set((run_dir / run_folder.MONITOR).glob("*")) - monitors_before:
+            path.unlink(missing_ok=True)
         raise
+    run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
     # A new stream: the resumed run must not replay the episodes it has already seen.
     model.set_random_seed(config["seed"] + steps)
-    return _learn(model, config, run_dir, progress_bar, resuming=True, curriculum=curriculum_state)
+    return _learn(
+        model,
+        config,
+        run_dir,
+        progress_bar,
+        resuming=True,
+        curriculum=curriculum_state,
+        evaluation=evaluation,
+    )
 
 
 def _tensorboard_dir(config: dict, run_dir: Path) -> str | None:
@@ -706,6 +755,7 @@ def _learn(
     progress_bar: bool,
     resuming: bool,
     curriculum: dict | None = None,
+    evaluation: PeriodicEvaluation | None = None,
 ) -> dict:
     boundary = RolloutBoundary()
     callbacks = [boundary, StopWhenRequested()]
@@ -714,8 +764,9 @@ def _learn(
         callbacks.append(level)
     if config["save_freq"]:
         callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"], level))
-    if config["eval_freq"]:
-        callbacks.append(PeriodicEvaluation(config, run_dir, config["eval_freq"]))
+    if evaluation is not None:
+        evaluation.started = time.perf_counter()
+        callbacks.append(evaluation)
     started = time.perf_counter()
     try:
         with interrupts.deferred():

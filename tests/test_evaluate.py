@@ -234,6 +234,7 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "did you mean 'view_budget'",
         ),
         (["--env", "ViewPlanning-v0", "--episodes", "0"], "--episodes must be at least 1"),
+        (["--env", "ViewPlanning-v0", "--seed", "-1"], "--seed must be 0 or more"),
         (
             ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "objects=[no/such.obj]"],
             "mesh file not found: no/such.obj",
@@ -250,6 +251,14 @@ def test_a_model_that_does_not_fit_its_env_fails_before_any_episode(tmp_path):
     stderr = evaluate_fails(str(SHIPPED_VIEW_POLICY), "--env-kwargs", "view_budget=6", out=out)
     assert "does not fit ViewPlanning-v0" in stderr and "view_history" in stderr
     assert not out.exists()
+
+
+def test_a_report_folder_that_is_a_file_fails_cleanly(tmp_path):
+    taken = tmp_path / "report"
+    taken.write_text("not a folder")
+    stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=taken)
+    assert f"cannot make the report folder '{taken}'" in stderr
+    assert taken.read_text() == "not a folder"
 
 
 def test_a_corrupt_model_zip_fails_cleanly(tmp_path):
@@ -292,6 +301,20 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
     assert (
         contestants[0]["episodes"][0]["instrument"] == contestants[1]["episodes"][0]["instrument"]
     )
+
+
+@pytest.mark.parametrize(
+    "env_id, algo", [("ViewPlanning-v0", "ppo"), ("InstrumentGrasp-v0", "sac")]
+)
+def test_a_lone_shipped_policy_zip_names_its_own_algorithm(tmp_path, env_id, algo):
+    from agents.contestants import ContestantError, policy_contestant
+
+    lone = tmp_path / "policy.zip"
+    shutil.copy(REPO / "policies" / env_id / algo / run_folder.BEST_MODEL, lone)
+    assert policy_contestant(lone, env_id=env_id).group == algo
+    other = "sac" if algo == "ppo" else "ppo"
+    with pytest.raises(ContestantError, match=f"saved by {algo}, not {other}"):
+        policy_contestant(lone, env_id=env_id, algo=other)
 
 
 def test_the_split_flags_offer_exactly_the_envs_splits():

@@ -176,6 +176,44 @@ def test_user_meshes_load_scaled_centred_and_resting_on_the_table(tmp_path, exte
     assert mesh.volume == pytest.approx(0.12 * 0.06 * 0.03, rel=1e-5)
 
 
+#: A cube as Blender exports it: quads, texture and normal indices, a group and smoothing.
+QUAD_CUBE_OBJ = """# Blender 4.2
+o Cube
+v 1 1 -1
+v 1 -1 -1
+v 1 1 1
+v 1 -1 1
+v -1 1 -1
+v -1 -1 -1
+v -1 1 1
+v -1 -1 1
+vn 0 1 0
+vt 0.5 0.5
+s 0
+f 1/1/1 5/1/1 7/1/1 3/1/1
+f 4/1/1 3/1/1 7/1/1 8/1/1
+f 8/1/1 7/1/1 5/1/1 6/1/1
+f 6/1/1 2/1/1 4/1/1 8/1/1
+f 2/1/1 1/1/1 3/1/1 4/1/1
+f -3//1 -4//1 -8//1 -7//1
+"""
+
+
+def test_user_obj_polygons_are_triangulated_not_dropped(tmp_path):
+    path = tmp_path / "cube.obj"
+    path.write_text(QUAD_CUBE_OBJ)
+    mesh = load_mesh_file(path, size=0.1)
+    assert (len(mesh.vertices), len(mesh.faces)) == (8, 12)
+    assert mesh.volume == pytest.approx(0.1**3, rel=1e-9)  # closed and wound outward
+    bad = tmp_path / "bad.obj"
+    bad.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n")
+    with pytest.raises(ValueError, match="bad.obj.*vertex it does not define"):
+        load_mesh_file(bad)
+    bad.write_text("v 0 0 0\nv 1 0 zero\n")
+    with pytest.raises(ValueError, match="bad.obj, line 2"):
+        load_mesh_file(bad)
+
+
 def test_user_mesh_cleanup_drops_degenerate_triangles_and_fixes_inward_winding(tmp_path):
     box = o3d.geometry.TriangleMesh.create_box(1.0, 1.0, 1.0)
     vertices = np.vstack([np.asarray(box.vertices), [[0.5, 0.0, 0.0]]])  # midpoint of 0 and 1

@@ -100,6 +100,10 @@ def test_a_python_expression_stays_a_string():
             ["--hyperparams", "eval_env_kwargs={object_st: validation}"],
             "did you mean 'object_set'",
         ),
+        (["--hyperparams", "target_kl=abc"], "target_kl must be a number, got 'abc'"),
+        (["--hyperparams", "env_kwargs=5"], "env_kwargs must be a mapping of env kwargs"),
+        (["--hyperparams", "normalize=maybe"], "normalize must be true or false, got 'maybe'"),
+        (["--hyperparams", "seed=3"], "seed is not a hyper-parameter here: set it with --seed"),
         (["--vec-env", "subprocess"], "did you mean 'subproc'"),
         (["-n", "0"], "timesteps must be an integer >= 1"),
         (["--config", "no/such/file.yml"], "does not exist"),
@@ -168,6 +172,40 @@ def test_a_hyperparameter_sb3_refuses_leaves_no_run_folder(hyperparam, reason, t
     error = capsys.readouterr().err
     assert "train.py: error: PPO refused its hyper-parameters" in error and reason in error
     assert not run_dir.exists()
+
+
+def test_a_run_folder_that_is_a_file_is_refused(tmp_path, capsys):
+    taken = tmp_path / "run"
+    taken.write_text("not a folder")
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(["--run-dir", str(taken)])
+    assert exit_info.value.code == 2
+    assert f"cannot make the run folder '{taken}'" in capsys.readouterr().err
+    assert taken.read_text() == "not a folder"
+
+
+def test_eval_env_kwargs_that_change_the_spaces_are_refused_before_training(tmp_path, capsys):
+    run_dir = tmp_path / "run"
+    argv = ["--hyperparams", "eval_env_kwargs={view_budget: 6}", "--run-dir", str(run_dir)]
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(argv)
+    assert exit_info.value.code == 2
+    assert "other observation or action spaces" in capsys.readouterr().err
+    assert not run_dir.exists()
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [(b"\xff\xfe\x00garbage", "is not valid YAML"), (b"5: {n_steps: 64}", "not names: [5]")],
+)
+def test_a_config_file_that_is_not_a_yaml_mapping_of_names_is_refused(
+    content, message, tmp_path, capsys
+):
+    config = tmp_path / "ppo.yml"
+    config.write_bytes(content)
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(["--config", str(config)])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
 
 
 def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
@@ -396,6 +434,25 @@ def test_resuming_a_finished_run_needs_more_steps(tmp_path):
     result = run_train("--resume", str(run_dir), check=False)
     assert result.returncode == 2
     assert "pass a larger --timesteps" in result.stderr
+
+
+def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
+    run_dir = tmp_path / "run"
+    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    before = {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()}
+    result = run_train("--resume", str(run_dir), "-n", "128", "--torch-threads", "0", check=False)
+    assert result.returncode == 2 and "torch-threads must be an integer >= 1" in result.stderr
+    checkpoint = run_folder.checkpoint_paths(run_dir, 64)["model"]
+    checkpoint.write_bytes(before[checkpoint][:1000])  # a truncated checkpoint
+    result = run_train("--resume", str(run_dir), "-n", "128", check=False)
+    assert result.returncode == 2 and "model_64_steps.zip" in result.stderr
+    after = {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()}
+    assert after == {**before, checkpoint: before[checkpoint][:1000]}
+    checkpoint.write_bytes(before[checkpoint])
+    run_train("--resume", str(run_dir), "-n", "128", "--final-episodes", "0")
+    config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
+    assert " -n 64 " in f"{config['command']} " and config["n_timesteps"] == 128
+    assert len(config["resume_commands"]) == 1 and "--resume" in config["resume_commands"][0]
 
 
 @pytest.mark.slow

@@ -159,6 +159,8 @@ def test_user_meshes_load(tmp_path):
         ({"epsilon_fraction": -1.0}, "epsilon_fraction must be a number"),
         ({"objects": "box"}, "objects must be a non-empty list"),
         ({"objects": ["no_such_object"]}, "no_such_object"),
+        ({"object_region": ((0.75, -0.35), (0.85, 0.35))}, "object_region must lie within x"),
+        ({"object_region": ((0.0, 0.0), (0.1, 0.1))}, "object_region must lie within x"),
     ],
 )
 def test_bad_kwargs_fail_with_clear_messages(kwargs, message):
@@ -245,6 +247,75 @@ def test_dynamic_motion_reaches_the_view_under_physics():
     optical_axis = -rotation[:, 2]
     assert optical_axis @ to_center / np.linalg.norm(to_center) > np.cos(np.deg2rad(1.0))
     env.close()
+
+
+def test_a_dynamic_view_stopped_short_is_refused_but_imaged_where_the_arm_stopped():
+    # A plan that is collision-free kinematically but whose servoed motion meets the cone.
+    env = ViewPlanningEnv(objects=["cone"], scales=(1.0,), motion="dynamic")
+    options = {"object": "cone", "scale": 1.0, "position": [0.47997, -0.01237], "yaw": 0.17794}
+    env.reset(seed=0, options=options)
+    for action in ([-0.1909, -0.6030, -0.8185], [0.1607, -0.4026, 0.3440]):
+        obs, *_ = env.step(np.array(action, dtype=np.float32))
+    before = env.arm.qpos
+    after, reward, _, _, info = env.step(np.array([-0.6010, 0.8842, -0.2698], np.float32))
+    assert info["reachable"] and info["refused"] and not info["sim_unstable"]
+    assert reward == pytest.approx(sum(v for k, v in info.items() if k.startswith("reward_")))
+    assert info["reward_refusal"] == -env.refusal_penalty
+    assert np.linalg.norm(env.arm.qpos - before) > 0.5  # the arm moved, then stopped on contact
+    # The image is the one the camera takes where it stopped, so depth and pose agree.
+    expected = env.camera.render(env.data)
+    scaled = np.round(np.clip(expected / env.depth_obs_range, 0, 1) * 255)
+    np.testing.assert_allclose(after["depth"][0], scaled, atol=1)
+    assert not np.array_equal(after["depth"], obs["depth"])
+    assert env.observation_space.contains(after)
+    env.close()
+
+
+def test_previews_leave_a_dynamic_episode_unchanged():
+    plain, previewed = (ViewPlanningEnv(motion="dynamic", **FAST) for _ in range(2))
+    plain.reset(seed=4)
+    previewed.reset(seed=4)
+    for action in ([0.2, 0.1, 0.0], [-0.5, 0.6, 0.3], [0.7, -0.2, -0.4]):
+        previewed.preview_view(0.5, 0.8, 0.35)
+        previewed.preview_view(-2.0, 0.5, 0.42)
+        first = plain.step(np.array(action, dtype=np.float32))
+        second = previewed.step(np.array(action, dtype=np.float32))
+        assert first[1] == second[1]
+        np.testing.assert_array_equal(first[0]["depth"], second[0]["depth"])
+        np.testing.assert_array_equal(plain.data.qvel, previewed.data.qvel)
+    plain.close()
+    previewed.close()
+
+
+def test_view_history_stays_in_its_space_with_a_discrete_radius_outside_the_range():
+    env = ViewPlanningEnv(action_mode="discrete", discrete_radius=0.6, **FAST)
+    env.reset(seed=0)
+    obs, *_ = env.step(0)
+    assert obs["view_history"][3] == pytest.approx(1.0)  # the largest radius it can request
+    assert env.observation_space.contains(obs)
+    env.close()
+
+
+def test_the_env_can_be_reset_after_close():
+    env = ViewPlanningEnv(**FAST)
+    first, _ = env.reset(seed=2)
+    env.close()
+    again, _ = env.reset(seed=2)
+    np.testing.assert_array_equal(first["depth"], again["depth"])
+    env.close()
+
+
+def test_a_reset_position_outside_the_workspace_is_refused(env):
+    with pytest.raises(ValueError, match=r"position \[0.84, 0.0\] puts box at scale 1.0"):
+        env.reset(seed=0, options={"object": "box", "position": (0.84, 0.0)})
+    _, info = env.reset(seed=0, options={"object": "box", "position": (0.6, 0.2)})
+    assert info["object"] == "box"
+
+
+def test_reconstruct_names_a_bad_tau_fraction(env):
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"tau_fraction must be a number in \[0.0001, 1.0\]"):
+        env.unwrapped.reconstruct(tau_fraction=-1)
 
 
 def test_noisy_depth_is_seeded():

@@ -116,6 +116,9 @@ class ViewPlanningEnv(gym.Env):
     of its bounding box at half its height), not from ground truth. Each step uses one view of
     the budget; the episode is truncated after ``view_budget`` steps. It terminates early
     (success) only if ``terminate_on_success`` and coverage reaches ``success_coverage``.
+    ``reset(options=...)`` may fix any of ``object`` (one of :attr:`object_names`), ``scale``
+    (one of ``scales``), ``position`` ((x, y) in m; the whole object must stay inside the
+    workspace crop, as ``object_region`` must for every object) and ``yaw`` (rad).
 
     **Action.** ``action_mode="continuous"``: ``Box(-1, 1, (3,))`` mapped linearly to
 
@@ -137,7 +140,10 @@ class ViewPlanningEnv(gym.Env):
     free). IK is solved for that pose; the arm takes the straight joint path if it is free,
     else a path through the home pose. A view whose IK fails or whose paths both collide is
     *refused*: the arm stays, no image is taken, the view still uses one step of the budget,
-    and ``refusal_penalty`` is charged.
+    and ``refusal_penalty`` is charged. With ``motion="dynamic"`` the servos follow the plan
+    under physics and stop at the first contact or at a waypoint not reached in time; a
+    view stopped short that way is refused too (penalty charged, -1 in the history), but the
+    arm stays where it stopped and the image is taken from there.
 
     **Observation** (``Dict``; usable by SB3's ``MultiInputPolicy`` as is):
 
@@ -149,8 +155,10 @@ class ViewPlanningEnv(gym.Env):
         estimated centre; ``reshape(G, G, G)`` gives it indexed [x, y, z] (G = ``map_grid``).
         Flat, so SB3 does not mistake it for an image.
     ``view_history`` (``view_budget`` * 5,) float32
-        Per used view: cos azimuth, sin azimuth, elevation / 90°, radius normalised to
-        [0, 1], +1 reached / -1 refused; zeros for views not yet used.
+        Per used view (as requested): cos azimuth, sin azimuth, elevation / 90°, radius
+        normalised to [0, 1] over ``radius_range`` (widened to take in ``discrete_radius`` in
+        discrete mode; 0 when only one radius is possible), +1 reached / -1 refused; zeros
+        for views not yet used.
     ``camera_pose`` (9,) float32
         Camera position relative to the estimated centre (m), then its optical axis and its
         image-up axis (unit vectors, world frame).
@@ -170,9 +178,11 @@ class ViewPlanningEnv(gym.Env):
     refusal_penalty * refused`` with Δcoverage the step's coverage gain and path_length the
     joint-space distance travelled (rad). ``info`` holds each term (``reward_coverage``,
     ``reward_motion``, ``reward_refusal``; they sum to the reward) and ``coverage``,
-    ``coverage_gain``, ``views_used``, ``reachable``, ``refused``, ``path_length``,
-    ``is_success`` (coverage ≥ ``success_coverage``), ``viewpoint`` (azimuth, elevation in
-    degrees, radius in m), ``object``, ``scale`` and ``sim_unstable``.
+    ``coverage_gain``, ``views_used``, ``reachable`` (IK and a collision-free path were
+    found), ``refused`` (the view was not reached; only dynamic motion can be ``reachable``
+    and refused), ``path_length``, ``is_success`` (coverage ≥ ``success_coverage``),
+    ``viewpoint`` (azimuth, elevation in degrees, radius in m), ``object``, ``scale`` and
+    ``sim_unstable``.
 
     **Simulator faults.** With ``motion="dynamic"``, physics that diverges (NaN, inf or huge
     accelerations, which MuJoCo answers by resetting its data) stops the motion; the episode
@@ -203,6 +213,11 @@ class ViewPlanningEnv(gym.Env):
     (2026-11-22, off by default, so existing observations are unchanged):
     ``observe_free_space``; ``object_set="validation"`` (four new families: bench, c_channel,
     ring_stand, stool; ``"train"`` and ``"held_out"`` are unchanged, ``"all"`` now has them).
+    Fixed within v0 (2026-11-22; default kinematic episodes are unchanged): a dynamic view
+    stopped short takes its image where the arm stopped (before, none, so the observed pose
+    and depth disagreed) and ``reachable`` means a path was found; ``preview_view`` restores
+    the dynamic state exactly; the history's radius feature stays in [0, 1] with a
+    ``discrete_radius`` outside ``radius_range``; the env can be reset after ``close()``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -314,6 +329,21 @@ class ViewPlanningEnv(gym.Env):
         self.object_names = tuple(mesh.name for mesh in meshes)
         self.scales = tuple(float(s) for s in scales)
         self._stage = ObjectStage(meshes, self.scales)
+        # Placements keep the whole object inside the workspace crop: points outside it are
+        # dropped, which would cap coverage below what the views saw.
+        self._footprints = {
+            (mesh.name, scale): scale * float(np.hypot(*mesh.vertices[:, :2].T).max())
+            for mesh in meshes
+            for scale in self.scales
+        }
+        low, high = self._placeable(max(self._footprints.values()))
+        if not ((region[0] >= low).all() and (region[1] <= high).all()):
+            raise ValueError(
+                f"object_region must lie within x in [{low[0]:.3f}, {high[0]:.3f}] and y in "
+                f"[{low[1]:.3f}, {high[1]:.3f}] m, so that every object and scale (footprint "
+                f"radius up to {max(self._footprints.values()):.3f} m) stays inside the "
+                f"workspace {WORKSPACE_LOWER[:2]}-{WORKSPACE_UPPER[:2]}; got {object_region!r}"
+            )
         # Ground truth of every variant up front: resets stay cheap, and worker processes
         # forked from this one never call open3d (its thread pool deadlocks after a fork).
         self._ground_truth = {
@@ -358,6 +388,10 @@ class ViewPlanningEnv(gym.Env):
             self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         else:
             self.action_space = spaces.Discrete(len(self.candidate_views))
+        # The history's radius feature spans every radius this env can request, so it stays
+        # in [0, 1] when discrete_radius lies outside radius_range (the default is inside).
+        radii = [*self.radius_range, discrete_radius if action_mode == "discrete" else np.nan]
+        self._history_radii = (float(np.nanmin(radii)), float(np.nanmax(radii)))
         obs_spaces = {
             "depth": spaces.Box(0, 255, (1, resolution, resolution), dtype=np.uint8),
             "map": spaces.Box(0.0, 1.0, (map_grid**3,), dtype=np.float32),
@@ -404,6 +438,14 @@ class ViewPlanningEnv(gym.Env):
             "position", rng.uniform(self.object_region[0], self.object_region[1])
         )
         yaw = float(options.get("yaw", rng.uniform(0.0, 2 * np.pi)))
+        low, high = self._placeable(self._footprints[(name, scale)])
+        if not ((position_xy >= low).all() and (position_xy <= high).all()):
+            raise ValueError(
+                f"reset option position {np.round(position_xy, 4).tolist()} puts {name} at "
+                f"scale {scale} "
+                f"partly outside the workspace: x must lie in [{low[0]:.3f}, {high[0]:.3f}] "
+                f"and y in [{low[1]:.3f}, {high[1]:.3f}] m"
+            )
 
         reset_to_home(self.model, self.data)
         self.placed = self._stage.place(
@@ -427,7 +469,7 @@ class ViewPlanningEnv(gym.Env):
         self._carve_free_space()
         self.coverage.update(self.placed.to_object(points))
         self._episode_ready = True
-        info = self._info(0.0, {}, reached=True, refused=False, path=0.0)
+        info = self._info(0.0, {}, planned=True, refused=False, path=0.0)
         return self._observation(), info
 
     def step(self, action):
@@ -448,7 +490,9 @@ class ViewPlanningEnv(gym.Env):
             path_length = motion.path_length
             reached = motion.reached
             unstable = motion.unstable
-            if reached:
+            # A dynamic motion can stop short of the view (see the class docstring); the
+            # camera then looks from where the arm stopped, so depth and pose still agree.
+            if not unstable:
                 gain = self.coverage.update(self.placed.to_object(self._capture()))
                 self._carve_free_space()
         refused = not reached
@@ -456,7 +500,8 @@ class ViewPlanningEnv(gym.Env):
             math.cos(azimuth),
             math.sin(azimuth),
             elevation / (np.pi / 2),
-            (radius - self.radius_range[0]) / max(np.ptp(self.radius_range), 1e-9),
+            (radius - self._history_radii[0])
+            / max(self._history_radii[1] - self._history_radii[0], 1e-9),
             -1.0 if refused else 1.0,
         ]
         self.views_used += 1
@@ -467,9 +512,8 @@ class ViewPlanningEnv(gym.Env):
             "reward_refusal": -self.refusal_penalty * float(refused),
         }
         reward = float(sum(terms.values()))
-        info = self._info(
-            gain, terms, reached=reached, refused=refused, path=path_length, unstable=unstable
-        )
+        info = self._info(gain, terms, planned=plan is not None, refused=refused, path=path_length)
+        info["sim_unstable"] = unstable
         info["viewpoint"] = (math.degrees(azimuth), math.degrees(elevation), radius)
         terminated = self.terminate_on_success and info["is_success"]
         # A diverged simulation (dynamic motion only) was reset by MuJoCo: the episode's
@@ -517,6 +561,7 @@ class ViewPlanningEnv(gym.Env):
             self._renderer = None
         if self._camera is not None:
             self._camera.close()
+            self._camera = None  # the camera property makes a new one if the env is reused
 
     # ------------------------------------------------------------------ reconstruction
     def reconstruct(
@@ -534,6 +579,7 @@ class ViewPlanningEnv(gym.Env):
         (Poisson meshing, about a second): call it at the end of an episode, not per step."""
         if self.placed is None:
             raise RuntimeError("call reset() first: there is nothing to reconstruct")
+        require_number("tau_fraction", tau_fraction, 1e-4, 1.0)
         record = reconstruct(
             self.map.points(), camera_locations=np.array(self._camera_locations), **kwargs
         )
@@ -549,8 +595,11 @@ class ViewPlanningEnv(gym.Env):
     def preview_view(self, azimuth: float, elevation: float, radius: float) -> dict:
         """PRIVILEGED (uses ground truth): what taking this view now would earn, without
         taking it. The arm is put there kinematically, a depth image is rendered (noise from
-        a fixed seed) and scored against the ground-truth samples, and the arm is put back.
-        For oracles and analysis, never for a policy's observations."""
+        a fixed seed) and scored against the ground-truth samples, and the simulation state is
+        restored exactly (velocities and servo targets too, so a ``motion="dynamic"`` episode
+        goes on as if no preview had happened). ``reward`` charges the plan's joint-space
+        length; a dynamic step charges the path it actually travels, so the two can differ
+        there. For oracles and analysis, never for a policy's observations."""
         if not self._episode_ready:
             raise RuntimeError("call reset() before preview_view()")
         eye = sphere_point(self.center, azimuth, elevation, radius)
@@ -565,18 +614,26 @@ class ViewPlanningEnv(gym.Env):
                 "path_length": 0.0,
                 "reward": -self.refusal_penalty,
             }
-        start = self.arm.qpos
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION  # all a later mj_step depends on
+        saved = np.empty(mujoco.mj_stateSize(self.model, spec))
+        mujoco.mj_getState(self.model, self.data, saved, spec)
         self.arm.set_qpos(plan.waypoints[-1])
         # Its own generator, so previews leave the episode's noise stream untouched.
         rng = np.random.default_rng(0) if self._noise_enabled else None
         depth = self._render_depth(rng)
         points = crop_points(self.camera.points_world(depth, self.data), *self._crop)
-        self.arm.set_qpos(start)
+        mujoco.mj_setState(self.model, self.data, saved, spec)
+        mujoco.mj_forward(self.model, self.data)
         gain = self.coverage.preview(self.placed.to_object(points))
         reward = self.coverage_reward_scale * gain - self.motion_cost * plan.length
         return {"reachable": True, "gain": gain, "path_length": plan.length, "reward": reward}
 
     # ------------------------------------------------------------------ internals
+    @staticmethod
+    def _placeable(footprint: float) -> tuple[np.ndarray, np.ndarray]:
+        """The (x, y) box where an object of this footprint radius lies inside the crop."""
+        return np.array(WORKSPACE_LOWER[:2]) + footprint, np.array(WORKSPACE_UPPER[:2]) - footprint
+
     def _tracker(self, name: str, scale: float) -> CoverageTracker:
         key = (name, scale)
         if key not in self._trackers:
@@ -656,22 +713,20 @@ class ViewPlanningEnv(gym.Env):
             obs["coverage"] = np.array([self.coverage.coverage], dtype=np.float32)
         return obs
 
-    def _info(
-        self, gain: float, terms: dict, *, reached: bool, refused: bool, path: float, unstable=False
-    ) -> dict:
+    def _info(self, gain: float, terms: dict, *, planned: bool, refused: bool, path: float) -> dict:
         coverage = self.coverage.coverage
         return {
             **terms,
             "coverage": coverage,
             "coverage_gain": gain,
             "views_used": self.views_used,
-            "reachable": reached,
+            "reachable": planned,
             "refused": refused,
             "path_length": path,
             "is_success": coverage >= self.success_coverage,
             "object": self.placed.name,
             "scale": self.placed.scale,
-            "sim_unstable": unstable,
+            "sim_unstable": False,
         }
 
 

@@ -753,8 +753,13 @@ def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> Ob
         )
     if not path.is_file():
         raise ValueError(f"mesh path {path} is not a file")
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        mesh = o3d.io.read_triangle_mesh(str(path))
+    if path.suffix.lower() == ".obj":
+        # open3d (through assimp) silently drops an OBJ's quads and other polygons, which is
+        # how Blender and most CAD tools export: read the file here instead.
+        mesh = _read_obj(path)
+    else:
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            mesh = o3d.io.read_triangle_mesh(str(path))
     if len(mesh.triangles) == 0:
         raise ValueError(
             f"could not read any triangles from mesh file {path} "
@@ -783,6 +788,42 @@ def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> Ob
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     vertices -= [(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, low[2]]
     return ObjectMesh(path.stem, vertices, faces)
+
+
+def _read_obj(path: Path) -> o3d.geometry.TriangleMesh:
+    """The vertices and faces of a Wavefront OBJ file, polygons fan-triangulated (exact for
+    convex polygons); texture, normal, line and group records are ignored."""
+    vertices: list[list[float]] = []
+    triangles: list[tuple[int, int, int]] = []
+    text = path.read_text(encoding="utf-8", errors="replace")
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields or fields[0] not in ("v", "f"):
+            continue
+        try:
+            if fields[0] == "v":
+                vertices.append([float(value) for value in fields[1:4]])
+                if len(vertices[-1]) != 3:
+                    raise ValueError("a vertex needs x, y and z")
+                continue
+            # "f a b c ...", each corner "v", "v/vt", "v//vn" or "v/vt/vn"; negative is relative.
+            corners = [int(field.split("/")[0]) for field in fields[1:]]
+            corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
+            if any(c < 0 for c in corners):
+                raise ValueError("a face refers to vertex 0 or before the first vertex")
+        except ValueError as error:
+            raise ValueError(
+                f"mesh file {path}, line {number}: {error}: {line.strip()!r}"
+            ) from None
+        triangles.extend(
+            (corners[0], corners[k], corners[k + 1]) for k in range(1, len(corners) - 1)
+        )
+    if triangles and max(map(max, triangles)) >= len(vertices):
+        raise ValueError(f"mesh file {path} has a face referring to a vertex it does not define")
+    return o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.asarray(vertices, dtype=np.float64).reshape(-1, 3)),
+        o3d.utility.Vector3iVector(np.asarray(triangles, dtype=np.int32).reshape(-1, 3)),
+    )
 
 
 # --- surface samples -------------------------------------------------------------------------
