@@ -120,6 +120,8 @@ def test_scripted_grasp_lifts_gently_and_squeeze_breaks_the_limit():
         assert info["peak_force"] > DEFAULT_FORCE_LIMIT
         assert min(step["reward_force"] for step in infos) < 0.0
         assert info["hard_limit_exceeded"] and info["reward_failure"] < 0.0
+        # The protective stop's own physics steps count towards the peaks.
+        assert info["step_peak_force"] >= info["grip_force"]
     env.close()
 
 
@@ -159,6 +161,54 @@ def test_success_needs_the_hold_time_and_terminate_on_success_pays_the_rest():
     assert steps_at_height == 20  # 1 s at 20 Hz, then it ends
     assert info["reward_success"] == pytest.approx(5.0 * (200 - len(infos)))
     assert not any(step["is_success"] for step in infos[:-1])
+
+
+def test_a_protective_stop_counts_its_last_physics_steps_in_the_peaks():
+    class PrivilegedSqueeze(PrivilegedGrasp):
+        squeeze = True
+
+    env = InstrumentGraspEnv()
+    expert = PrivilegedSqueeze(env)
+    observation, _ = env.reset(seed=1)
+    expert.reset()
+    for _ in range(200):
+        observation, _, terminated, _, info = env.step(expert.predict(observation)[0])
+        assert info["step_peak_force"] >= info["grip_force"] <= info["peak_force"]
+        if terminated:
+            break
+    assert info["hard_limit_exceeded"]
+    env.close()
+
+
+def test_a_zero_hold_time_still_needs_a_grasp_at_height():
+    env = InstrumentGraspEnv(hold_time=0.0, terminate_on_success=True)
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step(np.zeros(5, dtype=np.float32))
+    assert not info["is_success"] and not terminated and info["reward_success"] == 0.0
+    env.close()
+
+
+def test_turning_one_way_never_swings_the_arm():
+    # Wrist 3 meets its limit after about 30 steps at full yaw; the nearest IK solution is
+    # then another arm configuration, which the env must refuse rather than swing to.
+    env = InstrumentGraspEnv()
+    env.reset(seed=0)
+    world = env.world
+    for _ in range(40):
+        setpoint, tool = world.arm_ctrl(), world.tcp_position()
+        env.step(np.array([0, 0, 0, 1, 1], dtype=np.float32))
+        assert np.abs(world.arm_ctrl() - setpoint).max() < 0.5
+        assert np.linalg.norm(world.tcp_position() - tool) < 0.01
+    env.close()
+
+
+def test_an_image_env_can_be_reset_after_close():
+    env = InstrumentGraspEnv(obs_mode="depth", resolution=32)
+    first, _ = env.reset(seed=0)
+    env.close()
+    again, _ = env.reset(seed=0)
+    np.testing.assert_array_equal(first["depth"], again["depth"])
+    env.close()
 
 
 def test_handle_detection_matches_the_grasp_point():
@@ -221,8 +271,12 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
     env.reset(options={"instrument": "probe", "position": (0.5, 0.0), "yaw": 0.3})
     assert env.world.name == "probe"
     np.testing.assert_allclose(env.world.grasp_point()[:2], (0.5, 0.0), atol=2e-3)
-    with pytest.raises(ValueError, match="does not lie inside the tray"):
-        env.reset(options={"position": (0.5, 0.19), "yaw": 1.57})
+    before = env.np_random.bit_generator.state
+    with pytest.raises(ValueError, match=r"does not put .* inside the tray at yaw 1.570 rad"):
+        env.reset(seed=99, options={"position": (0.5, 0.19), "yaw": 1.57})
+    with pytest.raises(ValueError, match=r"at any yaw .*the tray's inside spans x 0.355-0.645"):
+        env.reset(seed=99, options={"position": (0.9, 0.9)})
+    assert env.np_random.bit_generator.state == before  # refused before anything changed
     with pytest.raises(ValueError, match="unknown reset option"):
         env.reset(options={"colour": "red"})
     with pytest.raises(ValueError, match="instrument='spoon'"):

@@ -69,6 +69,9 @@ DEFAULT_IMPACT_PENALTY = 0.05  # reward per newton above the impact limit
 DEFAULT_FAILURE_PENALTY = 5.0
 #: The most the reach, grasp, lift and hold terms pay in one step.
 MAX_STEP_REWARD = 5.0
+#: Largest joint set-point change (rad) an ee_delta step may ask for. A step's own moves need
+#: a few tenths at most; switching to another IK configuration needs about pi.
+MAX_SETPOINT_JUMP = 1.0
 REWARD_TERMS = (
     "reward_reach", "reward_grasp", "reward_lift", "reward_hold",
     "reward_force", "reward_impact", "reward_failure", "reward_success",
@@ -194,7 +197,9 @@ class InstrumentGraspEnv(gym.Env):
     With ``ee_delta`` (default) the tool stays pointing down; the target is clipped to the
     workspace above the tray (the fingertips stop 1 mm above its floor; the tool centre stays
     within the tray's inner walls, which the pads and open fingers can still touch) and solved
-    with the arm's closed-form IK; a target it cannot reach leaves the arm's set-point unchanged.
+    with the arm's closed-form IK; a target it cannot reach, or reaches only by switching to
+    another arm configuration (a joint set-point jumping by more than 1 rad, as turning one
+    way until wrist 3 meets its limit would), leaves the arm's set-point unchanged.
     Control runs at ``control_hz`` over physics steps of ``timestep`` seconds. The arm's joint
     servos track their set-points with ``arm_stiffness`` times their full stiffness (1: a stiff
     position-controlled arm; 0.1: a cobot's compliance mode, which bumps the instrument with a
@@ -212,8 +217,10 @@ class InstrumentGraspEnv(gym.Env):
                                 sensors, i.e. every contact on a pad (instrument, tray, ...)
     ``instrument``  (14,)       ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
                                 (3, m), handle axis (3), instrument linear velocity (3, m/s),
-                                grasp point relative to the tool centre in the tool's frame
-                                (3, m; the jaws close along its y axis), cos and sin of
+                                grasp point relative to the tool centre in the tool's yaw
+                                frame (3, m: x along the tool's x axis, the jaws closing
+                                along y, z up; the tool frame's own y and z point the other
+                                way, as the tool points down), cos and sin of
                                 twice the tool's yaw from across the handle (2; 1 and 0 when
                                 the jaws are across it, either way round)
     ``depth``       (1, H, W)   ``"depth"`` and ``"rgbd"``: wrist z-depth, uint8 levels (see
@@ -233,9 +240,13 @@ class InstrumentGraspEnv(gym.Env):
       impact being the net contact force on the instrument from anything but the pads, less
       its weight;
     - ``reward_failure`` = -``failure_penalty`` when a pad force exceeds
-      ``hard_limit_factor`` x ``force_limit``: the episode ends (terminated);
-    - ``reward_success`` = 5 per step left when the episode ends in success (only with
-      ``terminate_on_success``), what holding on until the time limit would have paid.
+      ``hard_limit_factor`` x ``force_limit``, or the impact exceeds ``hard_limit_factor`` x
+      ``impact_limit``: a protective stop holds the arm and fingers, and the episode ends
+      (terminated; ``info["hard_limit_exceeded"]``);
+    - ``reward_success`` = 5 per step left of ``episode_steps`` when the episode ends in
+      success (only with ``terminate_on_success``), what holding on until the time limit
+      would have paid. The env cannot see its TimeLimit wrapper: when you change
+      ``max_episode_steps``, pass the same number as ``episode_steps`` (default 200).
 
     Peaks are over the control step, sampled every 10 ms of physics.
 
@@ -274,7 +285,13 @@ class InstrumentGraspEnv(gym.Env):
     ``arm_stiffness`` and the ``tool_start``, ``tool_yaw_error`` and ``jaw_clearance`` reset
     options, added later (the defaults are unchanged); the ``instrument`` observation grew from
     9 to 14 entries (the grasp point and the handle's yaw relative to the tool) before any
-    grasp policy was published.
+    grasp policy was published. Fixed within v0 (2026-11-22): an ``ee_delta`` step that IK
+    could only reach in another arm configuration swung the arm across the workspace (now
+    refused); ``hold_time=0`` counted as success without a grasp; a protective stop's last
+    physics steps were left out of the force peaks; the success bonus counts to the new
+    ``episode_steps`` (it always counted to 200); ``close()`` then ``reset()`` failed with
+    image observations; a ``position`` reset option outside the tray is refused before the
+    reset changes anything.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -309,6 +326,7 @@ class InstrumentGraspEnv(gym.Env):
         friction_range: Sequence[float] | None = None,
         resolution: int = DEFAULT_RESOLUTION,
         depth_backend: str = "auto",
+        episode_steps: int = DEFAULT_MAX_EPISODE_STEPS,
         render_mode: str | None = None,
     ) -> None:
         require_choice("obs_mode", obs_mode, OBS_MODES)
@@ -339,6 +357,8 @@ class InstrumentGraspEnv(gym.Env):
         ):
             require_number(name, value, low, high)
         require_int("resolution", resolution, 8, 512)
+        require_int("episode_steps", episode_steps, 1, 100_000)
+        self.episode_steps = episode_steps
         substeps = round(1.0 / (control_hz * timestep))
         if substeps < 1 or not math.isclose(substeps * timestep * control_hz, 1.0, rel_tol=1e-6):
             raise ValueError(
@@ -373,7 +393,7 @@ class InstrumentGraspEnv(gym.Env):
         self.force_limit, self.hard_limit = force_limit, force_limit * hard_limit_factor
         self.impact_limit, self.target_height = impact_limit, target_height
         self.hard_impact_limit = impact_limit * hard_limit_factor
-        self.hold_steps = round(hold_time * control_hz)
+        self.hold_steps = max(1, round(hold_time * control_hz))  # at height for a step at least
         self.reach_sharpness = float(reach_sharpness)
         self.force_penalty, self.impact_penalty = force_penalty, impact_penalty
         self.failure_penalty = failure_penalty
@@ -425,6 +445,8 @@ class InstrumentGraspEnv(gym.Env):
         for key in ("tool_yaw_error", "jaw_clearance"):
             if key in options and "tool_start" not in options:
                 raise ValueError(f"reset option {key} needs tool_start as well")
+        if "position" in options:
+            self._check_position(options)
         super().reset(seed=seed)
         self._reset_seed = seed
         rng = self.np_random
@@ -441,6 +463,7 @@ class InstrumentGraspEnv(gym.Env):
             raise ValueError(
                 f"{name} with its grasp point at {xy.tolist()} and yaw {yaw:.3f} rad does not "
                 f"lie inside the tray with {TRAY_MARGIN * 1000:.0f} mm to spare"
+                f"{self._tray_extent()}"
             )
         mass_scale = rng.uniform(*self.mass_range) if self.mass_range else 1.0
         friction_scale = rng.uniform(*self.friction_range) if self.friction_range else 1.0
@@ -507,6 +530,8 @@ class InstrumentGraspEnv(gym.Env):
                 world.set_arm_ctrl(world.arm.qpos)
                 gripper.command(gripper.opening())
                 mujoco.mj_step(model, data, nstep=FORCE_SAMPLE_SUBSTEPS)
+                np.maximum(pad_peak, gripper.fingertip_forces(), out=pad_peak)
+                impact_peak = max(impact_peak, world.impact_force())
                 break
         # Checked once per control step: after a divergence MuJoCo's reset state is finite,
         # so the loop above runs on harmlessly, and its figures are discarded here.
@@ -539,7 +564,7 @@ class InstrumentGraspEnv(gym.Env):
             "reward_impact": -self.impact_penalty * max(0.0, impact_peak - self.impact_limit),
             "reward_failure": -self.failure_penalty if broke_limit else 0.0,
             # Ending early must not pay less than holding on until the time limit would.
-            "reward_success": MAX_STEP_REWARD * max(0, self._time_limit() - self._steps)
+            "reward_success": MAX_STEP_REWARD * max(0, self.episode_steps - self._steps)
             if ends_in_success and not broke_limit
             else 0.0,
         }
@@ -623,11 +648,29 @@ class InstrumentGraspEnv(gym.Env):
         """Seconds of simulated time per control step (as Gymnasium's MuJoCo envs)."""
         return self.substeps * self.world.model.opt.timestep
 
-    def _time_limit(self) -> int:
-        """Episode length: the registered (or ``gym.make``-given) limit, else the default."""
-        if self.spec is not None and self.spec.max_episode_steps is not None:
-            return int(self.spec.max_episode_steps)
-        return DEFAULT_MAX_EPISODE_STEPS
+    def _check_position(self, options: dict) -> None:
+        """A ``position`` reset option must place its instrument (or, without an
+        ``instrument`` option, every instrument) inside the tray at its ``yaw`` option or at
+        some yaw; checked before the reset touches the env's state or generator."""
+        names = [options["instrument"]] if "instrument" in options else self.instrument_names
+        yaws = [options["yaw"]] if "yaw" in options else np.linspace(0, 2 * np.pi, 24, False)
+        xy = np.asarray(options["position"], dtype=float)
+        for name in names:
+            if not any(self._worlds[name].fits_on_tray(xy, float(yaw)) for yaw in yaws):
+                turned = f"at yaw {yaws[0]:.3f} rad" if "yaw" in options else "at any yaw"
+                raise ValueError(
+                    f"reset option position {xy.tolist()} does not put {name} inside the tray "
+                    f"{turned} with {TRAY_MARGIN * 1000:.0f} mm to spare{self._tray_extent()}"
+                )
+
+    def _tray_extent(self) -> str:
+        tray = self.world.tray
+        low = np.asarray(tray.center) - np.asarray(tray.inner_half_size)
+        high = np.asarray(tray.center) + np.asarray(tray.inner_half_size)
+        return (
+            f" (the tray's inside spans x {low[0]:.3f}-{high[0]:.3f} m, "
+            f"y {low[1]:.3f}-{high[1]:.3f} m)"
+        )
 
     def _apply_arm_action(self, arm_action: np.ndarray) -> None:
         world = self.world
@@ -652,7 +695,10 @@ class InstrumentGraspEnv(gym.Env):
             seed_qpos=world.arm_ctrl(),
             method="analytic",
         )
-        if ik.success:
+        # Near a joint limit the nearest solution can be another arm configuration (elbow or
+        # wrist flipped), which a servo would swing to across the workspace: refused, as an
+        # unreachable target is.
+        if ik.success and np.abs(ik.qpos - world.arm_ctrl()).max() <= MAX_SETPOINT_JUMP:
             world.set_arm_ctrl(ik.qpos)
 
     def _observation(self) -> dict:
@@ -915,6 +961,7 @@ class _World:
     def close(self) -> None:
         if self._camera is not None:
             self._camera.close()
+            self._camera = None  # camera() makes a new one if the env is reset again
         if self._rgb is not None:
             self._rgb.close()
             self._rgb = None
