@@ -84,6 +84,26 @@ def test_epsilon_boundary_in_every_direction(options):
     assert np.array_equal(half.covered, np.arange(216) % 2 == 0)
 
 
+def test_both_methods_agree_on_points_exactly_at_epsilon():
+    # A squared distance a rounding error above epsilon**2 whose square root is epsilon: the
+    # kdtree method once counted it (distance <= epsilon) where the grid method did not.
+    rng = np.random.default_rng(5)
+    epsilon = 0.01
+    samples = rng.uniform(-0.1, 0.1, (300, 3)) + [0.5, 0.0, 0.1]
+    directions = rng.normal(size=samples.shape)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    points = samples + epsilon * directions
+    covered = [
+        CoverageTracker(samples, epsilon, method=method).update(points)
+        for method in COVERAGE_METHODS
+    ]
+    assert covered[0] == covered[1]
+    single = np.array([[0.1, 0.2, 0.3]])
+    point = np.array([[0.10456535710689069, 0.1922333483436855, 0.29565988058504955]])
+    gains = [CoverageTracker(single, epsilon, method=m).update(point) for m in COVERAGE_METHODS]
+    assert gains == [0.0, 0.0]
+
+
 @pytest.mark.parametrize("options", METHODS, ids=list(COVERAGE_METHODS))
 def test_any_sample_layout_and_epsilon(options):
     # Arbitrary extents, offsets and epsilons put samples on or near cell boundaries of the

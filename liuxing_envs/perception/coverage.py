@@ -306,7 +306,12 @@ class CoverageTracker:
             keep &= (points[:, c] >= clow[c]) & (points[:, c] <= chigh[c])
         if not keep.any():
             return candidates[:0]
-        tree = cKDTree(points[keep], balanced_tree=False, compact_nodes=False)
-        # distance_upper_bound excludes distances equal to it; nudge so "<= epsilon" holds.
-        distance, _ = tree.query(cand, k=1, distance_upper_bound=np.nextafter(eps, np.inf))
-        return candidates[distance <= eps]
+        kept = points[keep]
+        tree = cKDTree(kept, balanced_tree=False, compact_nodes=False)
+        # A loose bound, then the grid method's own test on the nearest point: a squared
+        # distance a rounding error above epsilon**2 can have a square root equal to epsilon.
+        distance, nearest = tree.query(cand, k=1, distance_upper_bound=eps * (1.0 + 1e-9))
+        found = np.flatnonzero(np.isfinite(distance))
+        closest = kept[nearest[found]]
+        d2 = sum((cand[found, c] - closest[:, c]) ** 2 for c in range(3))
+        return candidates[found[d2 <= self._eps2]]

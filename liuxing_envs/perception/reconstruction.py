@@ -10,8 +10,9 @@ cloud's bounding box (Poisson closes open scans with a "balloon" beyond the data
 Tatarchenko et al., "What Do Single-view 3D Reconstruction Networks Learn?" (CVPR 2019):
 
 - ``pred_to_gt`` / ``gt_to_pred``: mean nearest-neighbour distance from every predicted point
-  to the ground truth (accuracy) and from every ground-truth point to the prediction
-  (completeness), metres;
+  to the ground truth and from every ground-truth point to the prediction, metres (what
+  Occupancy-Networks-style papers call accuracy and completeness as distances; the
+  ``completeness`` key below is the share, not this distance);
 - ``chamfer``: the mean of those two means, metres (the *L1*, unsquared Chamfer distance
   halved, so a prediction offset by d everywhere scores d);
 - ``precision``: share of predicted points within ``tau`` of the ground truth;
