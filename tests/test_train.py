@@ -107,6 +107,7 @@ def test_a_python_expression_stays_a_string():
         (["--vec-env", "subprocess"], "did you mean 'subproc'"),
         (["-n", "0"], "timesteps must be an integer >= 1"),
         (["--config", "no/such/file.yml"], "does not exist"),
+        (["--config", str(Path(__file__).parent)], "is a folder; give a YAML file"),
         (["--resume", "no/such/run"], "does not exist"),
         (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
         (["--resume", "runs/x", "--init-from", "runs/y"], "--init-from cannot be changed"),
@@ -434,6 +435,15 @@ def test_resuming_a_finished_run_needs_more_steps(tmp_path):
     result = run_train("--resume", str(run_dir), check=False)
     assert result.returncode == 2
     assert "pass a larger --timesteps" in result.stderr
+
+
+def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(tmp_path):
+    run_dir = tmp_path / "run"
+    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    path = run_dir / run_folder.CONFIG
+    path.write_text(path.read_text().replace("algo: ppo", "algo: a2c"))
+    result = run_train("--resume", str(run_dir), "-n", "128", check=False)
+    assert result.returncode == 2 and "unknown algorithm 'a2c'" in result.stderr
 
 
 def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
