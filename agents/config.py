@@ -148,7 +148,7 @@ def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
     its name instead of as a tensor error minutes into training. Only scalars are checked:
     a list is one of SB3's tuple forms (``train_freq: [1, episode]``). A None default leaves
     the kind open, except for the numbers that default to off (``target_kl``)."""
-    if isinstance(value, (list, tuple, dict)) or value is None and default is None:
+    if isinstance(value, (list, tuple, dict)) or (value is None and default is None):
         return
     if default is None:
         if key not in OPTIONAL_NUMBERS:

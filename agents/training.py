@@ -428,6 +428,10 @@ class PeriodicEvaluation(_Periodic):
         self.best = max((row["mean_return"] for row in history), default=-np.inf)
         self.started = time.perf_counter()
 
+    def _on_training_start(self) -> None:
+        super()._on_training_start()
+        self.started = time.perf_counter()  # built before the model: wall time counts from here
+
     def act(self) -> None:
         try:
             self.evaluate()
@@ -512,9 +516,7 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         if trained is not None:
             load_trained_weights(model, trained)
     except BaseException:  # refused, or interrupted before a single step: nothing to keep
-        for opened in (venv, evaluation and evaluation.env):
-            if opened is not None:
-                opened.close()
+        _close_opened(venv, evaluation)
         if created:
             shutil.rmtree(run_dir, ignore_errors=True)
         raise
@@ -531,6 +533,14 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
         )
     return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
+
+
+def _close_opened(venv, evaluation: PeriodicEvaluation | None) -> None:
+    """Closes what a start or resume that failed half-way had opened."""
+    if venv is not None:
+        venv.close()
+    if evaluation is not None:
+        evaluation.env.close()
 
 
 def _periodic_evaluation(config: dict, run_dir: Path, venv) -> PeriodicEvaluation | None:
@@ -724,9 +734,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
         curriculum_state = run_folder.read_curriculum_state(paths["curriculum"])
         evaluation = _periodic_evaluation(config, run_dir, venv)
     except BaseException:  # refused: the run folder is left as it was
-        for opened in (venv, evaluation and evaluation.env):
-            if opened is not None:
-                opened.close()
+        _close_opened(venv, evaluation)
         for path in set((run_dir / run_folder.MONITOR).glob("*")) - monitors_before:
             path.unlink(missing_ok=True)
         raise
@@ -765,7 +773,6 @@ def _learn(
     if config["save_freq"]:
         callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"], level))
     if evaluation is not None:
-        evaluation.started = time.perf_counter()
         callbacks.append(evaluation)
     started = time.perf_counter()
     try:

@@ -336,12 +336,13 @@ class ViewPlanningEnv(gym.Env):
             for mesh in meshes
             for scale in self.scales
         }
-        low, high = self._placeable(max(self._footprints.values()))
+        largest = max(self._footprints.values())
+        low, high = self._placeable(largest)
         if not ((region[0] >= low).all() and (region[1] <= high).all()):
             raise ValueError(
                 f"object_region must lie within x in [{low[0]:.3f}, {high[0]:.3f}] and y in "
                 f"[{low[1]:.3f}, {high[1]:.3f}] m, so that every object and scale (footprint "
-                f"radius up to {max(self._footprints.values()):.3f} m) stays inside the "
+                f"radius up to {largest:.3f} m) stays inside the "
                 f"workspace {WORKSPACE_LOWER[:2]}-{WORKSPACE_UPPER[:2]}; got {object_region!r}"
             )
         # Ground truth of every variant up front: resets stay cheap, and worker processes
@@ -390,8 +391,8 @@ class ViewPlanningEnv(gym.Env):
             self.action_space = spaces.Discrete(len(self.candidate_views))
         # The history's radius feature spans every radius this env can request, so it stays
         # in [0, 1] when discrete_radius lies outside radius_range (the default is inside).
-        radii = [*self.radius_range, discrete_radius if action_mode == "discrete" else np.nan]
-        self._history_radii = (float(np.nanmin(radii)), float(np.nanmax(radii)))
+        radii = [*self.radius_range] + ([discrete_radius] if action_mode == "discrete" else [])
+        self._history_radii = (float(min(radii)), float(max(radii)))
         obs_spaces = {
             "depth": spaces.Box(0, 255, (1, resolution, resolution), dtype=np.uint8),
             "map": spaces.Box(0.0, 1.0, (map_grid**3,), dtype=np.float32),
@@ -512,8 +513,14 @@ class ViewPlanningEnv(gym.Env):
             "reward_refusal": -self.refusal_penalty * float(refused),
         }
         reward = float(sum(terms.values()))
-        info = self._info(gain, terms, planned=plan is not None, refused=refused, path=path_length)
-        info["sim_unstable"] = unstable
+        info = self._info(
+            gain,
+            terms,
+            planned=plan is not None,
+            refused=refused,
+            path=path_length,
+            unstable=unstable,
+        )
         info["viewpoint"] = (math.degrees(azimuth), math.degrees(elevation), radius)
         terminated = self.terminate_on_success and info["is_success"]
         # A diverged simulation (dynamic motion only) was reset by MuJoCo: the episode's
@@ -713,7 +720,9 @@ class ViewPlanningEnv(gym.Env):
             obs["coverage"] = np.array([self.coverage.coverage], dtype=np.float32)
         return obs
 
-    def _info(self, gain: float, terms: dict, *, planned: bool, refused: bool, path: float) -> dict:
+    def _info(
+        self, gain: float, terms: dict, *, planned: bool, refused: bool, path: float, unstable=False
+    ) -> dict:
         coverage = self.coverage.coverage
         return {
             **terms,
@@ -726,7 +735,7 @@ class ViewPlanningEnv(gym.Env):
             "is_success": coverage >= self.success_coverage,
             "object": self.placed.name,
             "scale": self.placed.scale,
-            "sim_unstable": False,
+            "sim_unstable": unstable,
         }
 
 
