@@ -19,7 +19,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks import peers, physics, scaling, throughput, time_split, training  # noqa: E402
-from benchmarks.isolated import machine  # noqa: E402
+from benchmarks.isolated import describe_cores, machine  # noqa: E402
 from benchmarks.throughput import GRASP, GRASP_STATE, VIEW_DEFAULT, VIEW_PLANNING, Config  # noqa: E402
 
 SECTIONS = ("throughput", "split", "physics", "peers", "scaling", "training")
@@ -216,7 +216,8 @@ def report(results: dict, command: str) -> str:
         ""
         if not results["quick"]
         else "**Quick run: a smoke test of the benchmark, not a measurement.**\n",
-        f"- Machine: {m['cpu']}, {m['cores']} cores, {m['memory']} RAM, {m['os']}, no GPU used",
+        f"- Machine: {m['cpu']}, {describe_cores(m)}, {m['memory']} RAM, {m['os']}",
+        f"- OpenGL renderer of the gl rows: {m.get('gl_renderer', 'not recorded')}",
         f"- Python {m['python']}; {versions}; MUJOCO_GL={m['MUJOCO_GL']}",
         "- Every rate is the median of repeated runs (min and max beside it), wall clock, one"
         " process per measurement, seeded uniform random actions with resets included.",

@@ -70,6 +70,34 @@ def spread(values) -> dict:
     return {"median": values[len(values) // 2], "min": values[0], "max": values[-1]}
 
 
+def gl_renderer() -> str:
+    """The OpenGL renderer that MUJOCO_GL gives (``llvmpipe ...`` is Mesa's software one, on
+    the CPU; a GPU's name means the gl rows rendered there), or why there is none."""
+    if not os.environ.get("MUJOCO_GL"):
+        return "none (MUJOCO_GL unset)"
+    probe = (
+        "import mujoco\n"
+        "context = mujoco.GLContext(1, 1)\n"
+        "context.make_current()\n"
+        "from OpenGL import GL\n"
+        "print(GL.glGetString(GL.GL_RENDERER).decode())\n"
+        "context.free()\n"
+    )
+    # In a child process, so no GL context outlives the probe in the benchmark's own.
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    if done.returncode != 0 or not done.stdout.strip():
+        return "none (no GL context)"
+    return done.stdout.strip().splitlines()[-1]
+
+
+def describe_cores(machine: dict) -> str:
+    """``"2 cores"``, or ``"2 of its 16 cores usable by this run"`` under ``taskset``."""
+    usable = machine.get("usable_cores", machine["cores"])
+    if usable == machine["cores"]:
+        return f"{usable} cores"
+    return f"{usable} of its {machine['cores']} cores usable by this run"
+
+
 def machine() -> dict:
     """What the figures were measured on: CPU, cores, memory, OS, Python, library versions,
     the rendering back end and the git commit."""
@@ -103,6 +131,9 @@ def machine() -> dict:
     return {
         "cpu": cpu,
         "cores": os.cpu_count(),
+        # A run under `taskset` sees fewer cores than the machine has; its figures are for those.
+        "usable_cores": len(os.sched_getaffinity(0)),
+        "gl_renderer": gl_renderer(),
         "memory": memory,
         "os": f"{platform.system()} {platform.release()}",
         "python": platform.python_version(),

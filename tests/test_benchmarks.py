@@ -9,6 +9,7 @@ import time
 
 import pytest
 
+from benchmarks.isolated import describe_cores
 from benchmarks.time_split import PhaseTimer
 from liuxing_envs.envs.instrument_grasp import DEFAULT_CONTROL_HZ, DEFAULT_TIMESTEP
 from tests.scripts import run_script
@@ -42,6 +43,9 @@ def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
     run_script("-m", "benchmarks", "--quick", "--sections", "split,physics", "--out", str(out))
     text = out.read_text()
     assert "Quick run" in text
+    # The gl rows rendered through MUJOCO_GL (egl in the tests): the report names the renderer.
+    renderer = json.loads(out.with_suffix(".json").read_text())["machine"]["gl_renderer"]
+    assert not renderer.startswith("none") and f"OpenGL renderer of the gl rows: {renderer}" in text
     assert "## Where a step's time goes" in text and "## The physics limit" in text
     results = json.loads(out.with_suffix(".json").read_text())
 
@@ -63,6 +67,22 @@ def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
     assert limits["InstrumentGrasp-v0"]["limit"] > 0
     # A dynamic view moves the arm under physics for hundreds of steps.
     assert limits["ViewPlanning-v0"]["mj_steps_per_env_step"] > 50
+
+
+def test_machine_description_counts_only_the_cores_a_pinned_run_may_use():
+    # Under `taskset` a run sees the machine's core count but may use fewer; its scaling and
+    # one-core figures are for those it may use.
+    probe = (
+        "import os; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))}); "
+        "from benchmarks.isolated import describe_cores, machine; "
+        "m = machine(); print(m['usable_cores'], m['cores'], describe_cores(m))"
+    )
+    usable, total, described = run_script("-c", probe).stdout.split(maxsplit=2)
+    assert usable == "1"
+    if int(total) > 1:
+        assert described.strip() == f"1 of its {total} cores usable by this run"
+    assert describe_cores({"cores": 2, "usable_cores": 2}) == "2 cores"
+    assert describe_cores({"cores": 2}) == "2 cores"  # RESULTS.json written before the field
 
 
 def test_unknown_section_is_refused():
