@@ -195,6 +195,10 @@ def test_default_tau_is_one_percent_of_the_object_size():
         reconstruction_metrics(gt, np.empty((0, 3)))
     with pytest.raises(ValueError, match="shape"):
         reconstruction_metrics(gt[:, :2], gt)
+    # One ground-truth point (or many at one place) has no size to take 1% of.
+    with pytest.raises(ValueError, match="all one point.*pass tau"):
+        reconstruction_metrics(gt, gt[:1])
+    assert reconstruction_metrics(gt[:1], gt[:1], 0.001)["fscore"] == 1.0
 
 
 def test_mesh_surface_sampling_is_uniform_by_area():

@@ -20,6 +20,10 @@ Tatarchenko et al., "What Do Single-view 3D Reconstruction Networks Learn?" (CVP
   prediction;
 - ``fscore``: their harmonic mean, ``2 P R / (P + R)`` (0 when both are 0).
 
+"Within ``tau``" counts a distance of exactly ``tau`` in (``<=``; the paper writes ``<``).
+Nearest-neighbour distances between sampled surfaces are continuous, so this changes a
+score only when points coincide at that distance, as on a grid of spacing ``tau``.
+
 ``tau`` defaults to 1 % of the object's size, the bounding-box diagonal of the ground truth
 unless ``object_size`` is given. All lengths are metres.
 """
@@ -425,6 +429,11 @@ def reconstruction_metrics(
     if tau is None:
         if object_size is None:
             object_size = float(np.linalg.norm(gt.max(axis=0) - gt.min(axis=0)))
+            if object_size <= 0:
+                raise ValueError(
+                    f"the {gt.shape[0]} gt_points are all one point, so they give no object "
+                    "size for the default tau; pass tau (metres) or object_size"
+                )
         tau = float(tau_fraction) * float(object_size)
     tau = float(tau)
     if not np.isfinite(tau) or tau <= 0:
