@@ -6,9 +6,11 @@ report (report.md, report.json, figures, optional videos).
     python evaluate.py --env ViewPlanning-v0 four-view uniform random --episodes 20
     python evaluate.py policies/InstrumentGrasp-v0/sac --baselines scripted-grasp,squeeze --video
     python evaluate.py model.zip --env InstrumentGrasp-v0 --env-kwargs obs_mode=state
+    python evaluate.py model.zip --env ViewPlanning-v0 --raw-observations  # not normalised
 
 Sources are run folders (their best model; --final-model for the last one), model .zip files
-(a zip inside a run folder takes the run's config; a lone one needs --env) or baseline names:
+(a zip inside a run folder takes the run's config; a lone one needs --env, and its
+vecnormalize.pkl beside it or --raw-observations) or baseline names:
 ViewPlanning-v0: four-view, uniform, random, greedy-oracle (privileged: it reads the ground
 truth); InstrumentGrasp-v0: scripted-grasp, squeeze, random. Several run folders of one
 algorithm are aggregated as training seeds (IQM, stratified bootstrap, probability of
@@ -46,6 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     what.add_argument(
         "--final-model", action="store_true", help="a run folder's final model, not its best"
+    )
+    what.add_argument(
+        "--raw-observations",
+        action="store_true",
+        help="a lone model file was trained without observation normalisation (without this, "
+        "its vecnormalize.pkl must lie beside it)",
     )
     episodes = parser.add_argument_group("episodes")
     episodes.add_argument("--episodes", type=int, default=100, help="episodes per contestant")
@@ -116,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
                 "InstrumentGrasp-v0": args.instrument_set,
             },
             best=not args.final_model,
+            raw_observations=args.raw_observations,
         )
         settings = report.Settings(
             episodes=args.episodes,

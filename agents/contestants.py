@@ -98,10 +98,12 @@ def policy_contestant(
     env_id: str | None = None,
     algo: str | None = None,
     best: bool = True,
+    raw_observations: bool = False,
 ) -> Contestant:
     """A run folder (its best model, else its final one) or a model zip. A zip inside a run
     folder (or its ``checkpoints/``) takes the run's config and normaliser; a lone zip needs
-    ``env_id``, and its algorithm is read from the zip unless ``algo`` is given."""
+    ``env_id``, its algorithm is read from the zip unless ``algo`` is given, and it needs its
+    normaliser beside it (named as in a run folder) unless ``raw_observations``."""
     path = Path(path)
     if not path.exists():
         raise ContestantError(f"{str(path)!r} does not exist (give a run folder or a model .zip)")
@@ -111,8 +113,13 @@ def policy_contestant(
     else:
         run_dir = _run_folder_of(path)
         config = _read_run_config(run_dir) if run_dir is not None else None
-        model_path, normalizer_path = path, _normalizer_beside(path, run_dir)
+        model_path, normalizer_path = path, _normalizer_beside(path)
     if config is not None:
+        if algo is not None and algo != config["algo"]:
+            raise ContestantError(
+                f"{str(path)!r} is a {config['algo']} run's, not {algo}: drop --algo (it is "
+                "for lone model files)"
+            )
         env_id, algo = config["env_id"], config["algo"]
         env_kwargs = dict(config.get("env_kwargs") or {})
         normalize = bool(config.get("normalize"))
@@ -129,7 +136,18 @@ def policy_contestant(
                 f"pass --algo {saved_by}"
             )
         algo = saved_by
-        env_kwargs, normalize, seed = {}, False, None
+        # Without a run's config, the statistics saved beside the file (as a run folder
+        # names them) say it was trained with normalisation; a zip copied without them would
+        # act on raw observations, which the spaces check cannot catch.
+        normalize = normalizer_path.is_file()
+        if not normalize and not raw_observations:
+            raise ContestantError(
+                f"{str(model_path)!r} is not in a run folder and has no {normalizer_path.name} "
+                "beside it, so whether it was trained on normalised observations is unknown: "
+                "evaluate its run folder, put its normaliser beside it under that name, or "
+                "pass --raw-observations if it was trained without one"
+            )
+        env_kwargs, seed = {}, None
     if normalize and (normalizer_path is None or not normalizer_path.is_file()):
         raise ContestantError(
             f"{str(model_path)!r} was trained with observation normalisation, but its "
@@ -220,12 +238,10 @@ def _run_folder_of(model_path: Path) -> Path | None:
     return None
 
 
-def _normalizer_beside(model_path: Path, run_dir: Path | None) -> Path | None:
-    """The statistics saved with a model file in a run folder: ``best_model.zip`` ->
-    ``best_vecnormalize.pkl``, ``model.zip`` -> ``vecnormalize.pkl``, a checkpoint
-    ``model_<N>_steps.zip`` -> ``vecnormalize_<N>_steps.pkl``."""
-    if run_dir is None:
-        return None
+def _normalizer_beside(model_path: Path) -> Path:
+    """Where a run folder keeps the statistics saved with a model file: ``best_model.zip``
+    -> ``best_vecnormalize.pkl``, a checkpoint ``model_<N>_steps.zip`` ->
+    ``vecnormalize_<N>_steps.pkl``, any other (``model.zip``) -> ``vecnormalize.pkl``."""
     name = model_path.name
     if name == run_folder.BEST_MODEL:
         return model_path.parent / run_folder.BEST_NORMALIZER
@@ -289,14 +305,16 @@ def build_contestants(
     env_kwargs: Mapping | None = None,
     splits: Mapping[str, str] | None = None,
     best: bool = True,
+    raw_observations: bool = False,
 ) -> list[Contestant]:
     """Contestants for the given sources (run folders, model zips, baseline names), plus
     ``baselines`` (default: each environment's reference baselines; ``[]``: none).
 
-    Each policy runs in its run's env kwargs, updated with ``env_kwargs``; the baselines of an
-    environment run in its first policy's (so the same view budget, say), plus what they
-    read. Every contestant is put on ``splits[env_id]`` (default ``held_out``) unless its
-    kwargs name objects or instruments explicitly."""
+    Each policy runs in its run's env kwargs, less the scene it was trained on (its split or
+    explicit list of objects or instruments), updated with ``env_kwargs``; the baselines of
+    an environment run in its first policy's (so the same view budget, say), plus what they
+    read. Every contestant is put on ``splits[env_id]`` (default ``held_out``) unless
+    ``env_kwargs`` names objects or instruments explicitly."""
     env_kwargs = dict(env_kwargs or {})
     splits = dict(splits or {})
     contestants: list[Contestant] = []
@@ -306,7 +324,11 @@ def build_contestants(
         if not looks_like_path:
             named_baselines.append(source)
             continue
-        contestants.append(policy_contestant(source, env_id=env_id, algo=algo, best=best))
+        contestants.append(
+            policy_contestant(
+                source, env_id=env_id, algo=algo, best=best, raw_observations=raw_observations
+            )
+        )
     env_ids = list(dict.fromkeys(c.env_id for c in contestants))
     if env_id is not None and env_id not in env_ids:
         env_ids.append(env_id)
@@ -319,7 +341,22 @@ def build_contestants(
             f"baseline names ({', '.join(named_baselines)}) are ambiguous with policies of "
             f"{', '.join(env_ids)}: evaluate one environment at a time, or use --baselines"
         )
+    if "render_mode" in env_kwargs:
+        raise ContestantError(
+            "render_mode is evaluate.py's to set (rgb_array for --video), not --env-kwargs"
+        )
+    for current in env_ids:
+        split = task_for(current).split_kwarg
+        if split in env_kwargs:
+            raise ContestantError(
+                f"the {split.replace('_', ' ')} is chosen with --{split.replace('_', '-')}, "
+                f"not --env-kwargs {split}=..."
+            )
     for contestant in contestants:
+        task = task_for(contestant.env_id)
+        # What it was trained on is not what it is scored on (the split decides, below).
+        for key in (task.split_kwarg, task.explicit_scene_kwarg):
+            contestant.env_kwargs.pop(key, None)
         contestant.env_kwargs.update(env_kwargs)
     for current in env_ids:
         check_env_kwargs(current, env_kwargs)

@@ -177,11 +177,17 @@ def run_episodes(
 ) -> list[dict]:
     """One episode per seed; returns per episode its seed, return, length, the final
     ``info`` values of ``keys`` and what ``recorder`` (see :mod:`agents.recorders`) adds.
-    ``on_episode`` is called after each episode (a progress bar's update)."""
+    ``on_episode`` is called after each episode (a progress bar's update). Sampled actions
+    (``deterministic=False``) draw from torch's generator seeded with the episode's seed, so
+    an episode does not depend on what ran before it in the process."""
     keys = tuple(keys)
     episodes = []
     for index, seed in enumerate(seeds):
         observation, info = env.reset(seed=int(seed))
+        if not deterministic:
+            import torch  # loaded with the policy already; not needed by baselines
+
+            torch.manual_seed(int(seed))
         if hasattr(policy, "reset"):
             policy.reset()
         if recorder is not None:

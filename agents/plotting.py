@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -109,12 +110,19 @@ def plot_coverage_curves(path: Path, curves: dict) -> Path:
     return _save(figure, path)
 
 
-def plot_reconstructions(path: Path, folder: Path, label: str) -> Path | None:
-    """Saved reconstructions (``folder/seed_*/``) beside their ground truth: one row per
-    episode, points seen from the same oblique view. None when nothing was saved."""
+def plot_reconstructions(
+    path: Path, folder: Path, label: str, seeds: Sequence[int] | None = None
+) -> Path | None:
+    """Saved reconstructions (``folder/seed_<seed>/``, of ``seeds`` or else all) beside their
+    ground truth: one row per episode, points seen from the same oblique view. None when
+    nothing was saved."""
     import open3d as o3d
 
-    episodes = sorted(Path(folder).glob("seed_*/ground_truth.ply"))
+    if seeds is None:
+        episodes = sorted(Path(folder).glob("seed_*/ground_truth.ply"))
+    else:  # only this report's: an earlier report into the same folder may have left others
+        episodes = [Path(folder) / f"seed_{seed}" / "ground_truth.ply" for seed in seeds]
+        episodes = [episode for episode in episodes if episode.is_file()]
     if not episodes:
         return None
     plt = _pyplot()

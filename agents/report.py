@@ -115,7 +115,9 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     if settings.video_episodes:
         figures["videos"] = [
             str(path.relative_to(out))
-            for path in record_videos(contestants, seeds[: settings.video_episodes], out)
+            for path in record_videos(
+                contestants, seeds[: settings.video_episodes], out, settings.deterministic
+            )
         ]
     report["figures"] = figures
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
@@ -266,13 +268,30 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
         "contestants": results,
         "aggregates": [],
     }
+    section["aggregate_notes"] = []
     baseline = next((r for r in results if r["label"] == task.baseline), None)
-    groups: dict[str, list[dict]] = {}
-    for result in results:
+    # Training seeds of one method: the same algorithm run in the same env settings.
+    groups: dict[tuple[str, str], list[int]] = {}
+    for index, result in enumerate(results):
         if result["kind"] == "policy":
-            groups.setdefault(result["group"], []).append(result)
-    for group, members in groups.items():
+            settings = json.dumps(result["env_kwargs"], sort_keys=True, default=str)
+            groups.setdefault((result["group"], settings), []).append(index)
+    for (group, _), indices in groups.items():
+        members = [results[i] for i in indices]
         if len(members) < 2:
+            continue
+        seeds = [m["training_seed"] for m in members]
+        labels = ", ".join(m["label"] for m in members)
+        if None in seeds or len(set(seeds)) < len(seeds):
+            section["aggregate_notes"].append(
+                f"{labels}: not aggregated as training seeds of {group}, their training seeds "
+                f"{seeds} are unknown or repeated"
+            )
+            continue
+        if any(scenes[i] != scenes[indices[0]] for i in indices):
+            section["aggregate_notes"].append(
+                f"{labels}: not aggregated as training seeds of {group}, they saw different scenes"
+            )
             continue
         scores = np.stack([_scores(m, task.metric) for m in members])
         aggregate = {
@@ -308,10 +327,12 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
                 out,
             )
             pictures = []
+            saved = min(settings.save_episodes, settings.reconstruct_episodes)
+            saved_seeds = range(settings.seed, settings.seed + saved)
             for result in results:
                 folder = out / "reconstructions" / slug(result["label"])
                 picture = plotting.plot_reconstructions(
-                    folder / "reconstructions.png", folder, result["label"]
+                    folder / "reconstructions.png", folder, result["label"], saved_seeds
                 )
                 if picture is not None:
                     pictures.append(_rel(picture, out))
@@ -464,8 +485,15 @@ def markdown(report: dict) -> str:
         "",
         f"Each contestant ran the same {settings['episodes']} episodes, seeds {first}-{last} "
         f"({'deterministic' if settings['deterministic'] else 'stochastic'} actions for trained "
-        "policies): episode k of every contestant has the same object or instrument in the same "
-        "pose, so differences are paired. 95% intervals: percentile bootstrap of the mean "
+        "policies): "
+        + (
+            "episode k of every contestant has the same object or instrument in the same "
+            "pose, so differences are paired. "
+            if all(section["paired"] for section in report["environments"].values())
+            else "where contestants share their env kwargs, episode k has the same object or "
+            "instrument in the same pose (see each environment's note on pairing). "
+        )
+        + "95% intervals: percentile bootstrap of the mean "
         "(10,000 resamples) for continuous figures, Wilson for rates. Per-episode figures are "
         f"in `{REPORT_JSON}`.",
     ]
@@ -489,6 +517,8 @@ def markdown(report: dict) -> str:
             lines += _view_planning_tables(section)
         else:
             lines += _grasp_tables(section)
+        for note in section.get("aggregate_notes", []):
+            lines += ["", f"Not aggregated: {note}."]
         if section["aggregates"]:
             lines += [
                 "",

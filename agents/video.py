@@ -41,9 +41,12 @@ def _annotate(frame: np.ndarray, title: str, lines: Sequence[str]) -> np.ndarray
     return frame
 
 
-def record_videos(contestants, seeds: Iterable[int], out: Path) -> list[Path]:
+def record_videos(
+    contestants, seeds: Iterable[int], out: Path, deterministic: bool = True
+) -> list[Path]:
     """One mp4 per contestant under ``out/videos/``, its episodes of ``seeds`` one after
-    another; returns the written paths."""
+    another, acting as the report's episodes do (``deterministic``, or sampled from torch's
+    generator seeded with each episode's seed); returns the written paths."""
     folder = Path(out) / "videos"
     folder.mkdir(parents=True, exist_ok=True)
     seeds = list(seeds)
@@ -61,6 +64,10 @@ def record_videos(contestants, seeds: Iterable[int], out: Path) -> list[Path]:
             policy = contestant.make_policy(env)
             for seed in seeds:
                 observation, info = env.reset(seed=int(seed))
+                if not deterministic:  # as run_episodes seeds them, so the video is that episode
+                    import torch
+
+                    torch.manual_seed(int(seed))
                 if hasattr(policy, "reset"):
                     policy.reset()
                 step, done = 0, False
@@ -79,7 +86,7 @@ def record_videos(contestants, seeds: Iterable[int], out: Path) -> list[Path]:
                         writer.write(frame)
                     if done:
                         break
-                    action, _ = policy.predict(observation, deterministic=True)
+                    action, _ = policy.predict(observation, deterministic=deterministic)
                     observation, _, terminated, truncated, info = env.step(action)
                     step += 1
                     done = terminated or truncated

@@ -184,6 +184,8 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     for seed in (2, 3):
         run = tmp_path / f"ppo_seed{seed}"
         shutil.copytree(SHIPPED_VIEW_POLICY, run)
+        config = run / run_folder.CONFIG
+        config.write_text(config.read_text().replace("seed: 2\n", f"seed: {seed}\n", 1))
         runs.append(str(run))
     out = tmp_path / "report"
     run_script(
@@ -206,6 +208,16 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         [1.0 if p > b else 0.5 if p == b else 0.0 for p, b in zip(policy, baseline, strict=True)]
     )
     assert improvement["value"] == pytest.approx(expected)
+
+    # The same run twice is not two training seeds.
+    again = tmp_path / "again"
+    run_script(
+        *("evaluate.py", runs[0], runs[0], "--baselines", "none", "--episodes", "2"),
+        *("--reconstruct-episodes", "0", "--out", str(again)),
+    )
+    section = read_report(again)["environments"]["ViewPlanning-v0"]
+    assert section["aggregates"] == [] and "[2, 2]" in section["aggregate_notes"][0]
+    assert "Not aggregated:" in (again / "report.md").read_text()
 
 
 # --- bad input --------------------------------------------------------------------------------
@@ -239,6 +251,11 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "objects=[no/such.obj]"],
             "mesh file not found: no/such.obj",
         ),
+        (
+            ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "render_mode=human"],
+            "render_mode is evaluate.py's to set",
+        ),
+        (["policies/ViewPlanning-v0/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
     ],
 )
 def test_bad_input_exits_with_a_message_naming_the_problem(args, message):
@@ -287,6 +304,11 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
     lone = tmp_path / "policy.zip"
     shutil.copy(grasp_run / run_folder.FINAL_MODEL, lone)
     assert "pass --env" in evaluate_fails(str(lone))
+    # The run normalised its observations: without the statistics beside it, the copy would
+    # act on raw ones, so it is refused unless told it was trained without them.
+    refused = evaluate_fails(str(lone), "--env", "InstrumentGrasp-v0")
+    assert "vecnormalize.pkl" in refused and "--raw-observations" in refused
+    shutil.copy(grasp_run / run_folder.FINAL_NORMALIZER, tmp_path / run_folder.FINAL_NORMALIZER)
     out = tmp_path / "report"
     in_run = grasp_run / run_folder.FINAL_MODEL
     run_script(
@@ -311,10 +333,37 @@ def test_a_lone_shipped_policy_zip_names_its_own_algorithm(tmp_path, env_id, alg
 
     lone = tmp_path / "policy.zip"
     shutil.copy(REPO / "policies" / env_id / algo / run_folder.BEST_MODEL, lone)
-    assert policy_contestant(lone, env_id=env_id).group == algo
+    assert policy_contestant(lone, env_id=env_id, raw_observations=True).group == algo
     other = "sac" if algo == "ppo" else "ppo"
     with pytest.raises(ContestantError, match=f"saved by {algo}, not {other}"):
         policy_contestant(lone, env_id=env_id, algo=other)
+    with pytest.raises(ContestantError, match="vecnormalize.pkl beside it.*--raw-observations"):
+        policy_contestant(lone, env_id=env_id)
+
+
+def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the_split(tmp_path):
+    from agents.contestants import ContestantError, build_contestants
+
+    run = tmp_path / "ppo_listed"
+    shutil.copytree(REPO / "policies" / "ViewPlanning-v0" / "ppo", run)
+    config = run / run_folder.CONFIG
+    config.write_text(
+        config.read_text().replace(
+            "  action_mode: discrete\n",
+            "  action_mode: discrete\n  objects: [box, bench]\n  object_set: train\n",
+        )
+    )
+    contestants = build_contestants([str(run)], splits={"ViewPlanning-v0": "held_out"})
+    assert [c.label for c in contestants] == ["ppo_listed", "four-view", "greedy-oracle"]
+    for contestant in contestants:
+        assert "objects" not in contestant.env_kwargs
+        assert contestant.env_kwargs["object_set"] == "held_out"
+        assert contestant.env_kwargs["action_mode"] == "discrete"  # the run's other kwargs stay
+    # A list given for this evaluation is used; the split is chosen by its own flag.
+    chosen = build_contestants([str(run)], env_kwargs={"objects": ["arch"]}, baselines=[])
+    assert chosen[0].env_kwargs["objects"] == ["arch"] and "object_set" not in chosen[0].env_kwargs
+    with pytest.raises(ContestantError, match="--object-set, not --env-kwargs object_set"):
+        build_contestants([str(run)], env_kwargs={"object_set": "train"})
 
 
 def test_the_split_flags_offer_exactly_the_envs_splits():
@@ -350,3 +399,21 @@ def test_a_run_trained_on_a_list_of_items_is_compared_on_the_held_out_split(
         assert getattr(env.unwrapped, key) == value  # the run's other kwargs stay
     finally:
         env.close()
+
+
+def test_sampled_actions_do_not_depend_on_what_ran_before_in_the_process():
+    import torch
+
+    from agents.contestants import policy_contestant
+    from agents.evaluation import make_env, run_episodes
+
+    contestant = policy_contestant(REPO / "policies" / "ViewPlanning-v0" / "ppo")
+    env = make_env("ViewPlanning-v0", {**contestant.env_kwargs, "object_set": "held_out"})
+    policy = contestant.make_policy(env)
+    try:
+        first = run_episodes(env, policy, [5, 6, 7], ["coverage"], deterministic=False)
+        torch.rand(1000)  # another policy sampling in between, as in a report of several
+        again = run_episodes(env, policy, [5, 6, 7], ["coverage"], deterministic=False)
+    finally:
+        env.close()
+    assert first == again

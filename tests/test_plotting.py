@@ -42,3 +42,23 @@ def test_a_resumed_runs_episodes_follow_the_first_segments(tmp_path):
     np.testing.assert_array_equal(steps, [4, 8, 10])
     assert returns.shape == (3,)
     assert plot_learning_curve(tmp_path, "success rate", 10).is_file()
+
+
+def test_the_reconstruction_figure_shows_only_the_episodes_it_is_given(tmp_path):
+    import matplotlib.image
+    import open3d as o3d
+
+    from agents.plotting import plot_reconstructions
+
+    rng = np.random.default_rng(0)
+    for seed in (7, 8):  # seed 7: left by an earlier report into the same folder
+        folder = tmp_path / f"seed_{seed}"
+        folder.mkdir()
+        for name in ("ground_truth.ply", "reconstruction_cloud.ply"):
+            cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rng.random((50, 3))))
+            o3d.io.write_point_cloud(str(folder / name), cloud)
+    both = plot_reconstructions(tmp_path / "both.png", tmp_path, "x")
+    mine = plot_reconstructions(tmp_path / "mine.png", tmp_path, "x", seeds=[8, 9])
+    rows = [matplotlib.image.imread(path).shape[0] for path in (both, mine)]
+    assert rows[0] == 2 * rows[1]
+    assert plot_reconstructions(tmp_path / "none.png", tmp_path, "x", seeds=[9]) is None
