@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shlex
 import sys
 from pathlib import Path
@@ -40,15 +41,49 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--quick", action="store_true", help="short runs: a smoke test")
     parser.add_argument(
         "--sections",
-        default=",".join(SECTIONS),
+        default=None,
         help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)",
     )
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="Markdown report path")
+    parser.add_argument(
+        "--update",
+        action="store_true",
+        help="re-measure only --sections into the report at --out (its .json), keeping the "
+        "others; the report then says which sections were re-measured, when",
+    )
     args = parser.parse_args(argv)
-    args.sections = [s.strip() for s in args.sections.split(",") if s.strip()]
+    named = args.sections is not None
+    args.sections = [s.strip() for s in (args.sections or ",".join(SECTIONS)).split(",")]
+    args.sections = [s for s in args.sections if s]
     unknown = sorted(set(args.sections) - set(SECTIONS))
     if unknown:
         parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
+    args.earlier = None
+    if args.update:
+        if not named:
+            parser.error("--update re-measures the --sections it is given; name them")
+        path = args.out.with_suffix(".json")
+        try:
+            args.earlier = json.loads(path.read_text())
+        except (OSError, ValueError) as error:
+            parser.error(f"--update needs the earlier report's {path}: {error}")
+        if not isinstance(args.earlier, dict) or "machine" not in args.earlier:
+            parser.error(f"{path} is not a benchmark report's JSON")
+        if bool(args.earlier.get("quick")) != args.quick:
+            parser.error(
+                f"{path} is {'a quick' if args.quick is False else 'a full'} run's; "
+                "--update keeps runs of one kind"
+            )
+        mine, theirs = machine(), args.earlier["machine"]
+        theirs = {"usable_cores": theirs.get("cores"), **theirs}  # reports before the field
+        different = [
+            k for k in ("cpu", "cores", "usable_cores", "memory") if mine.get(k) != theirs.get(k)
+        ]
+        if different:
+            parser.error(
+                f"{path} was measured on another machine ({', '.join(different)} differ): "
+                "its targets compare sections, which must come from one machine"
+            )
     return args
 
 
@@ -60,6 +95,10 @@ def _table(header: tuple, rows: list[tuple]) -> list[str]:
     return [_row(*header), _row(*("---" for _ in header)), *(_row(*r) for r in rows), ""]
 
 
+def _number(value, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
 def _rate(result: dict) -> str:
     return f"{result['median']:.0f}"
 
@@ -68,11 +107,32 @@ def _progress(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def run(sections: list[str], quick: bool, on_section=lambda results: None) -> dict:
-    """Every measurement of the chosen sections, as plain data; ``on_section(results)`` is
-    called after each section (so a failure late in a long run loses nothing before it)."""
+def run(
+    sections: list[str],
+    quick: bool,
+    on_progress=lambda results: None,
+    earlier: dict | None = None,
+    command: str = "",
+) -> dict:
+    """Every measurement of the chosen sections, as plain data; ``on_progress(results)`` is
+    called after each measurement (so a failure late in a long run loses nothing before it).
+    With ``earlier`` (a report's results), its other sections and machine are kept, and the
+    sections measured again are listed under ``remeasured`` with ``command``."""
     scale, repeats = (0.1, 1) if quick else (1.0, 3)
     results: dict = {"machine": machine(), "quick": quick}
+    if earlier is None:
+        results["command"] = command
+    else:
+        results = {**earlier, "remeasured": dict(earlier.get("remeasured", {}))}
+        now = results.pop("machine"), machine()
+        results["machine"] = now[0]
+        for section in sections:
+            results.pop(section, None)
+            results["remeasured"][section] = {
+                "date": now[1]["date"],
+                "commit": now[1]["commit"],
+                "command": command,
+            }
     if "throughput" in sections:
         results["throughput"] = []
         for config in throughput.CONFIGS:
@@ -81,7 +141,8 @@ def run(sections: list[str], quick: bool, on_section=lambda results: None) -> di
             results["throughput"].append(
                 {"env_id": config.env_id, "mode": config.label, **measured}
             )
-    on_section(results)
+            on_progress(results)
+    on_progress(results)
     if "split" in sections:
         results["split"] = []
         for config in time_split.SPLIT_CONFIGS:
@@ -89,7 +150,8 @@ def run(sections: list[str], quick: bool, on_section=lambda results: None) -> di
             steps = max(40, int((400 if config.env_id == VIEW_PLANNING else 1000) * scale))
             measured = time_split.measure(config, steps)
             results["split"].append({"env_id": config.env_id, "mode": config.label, **measured})
-    on_section(results)
+            on_progress(results)
+    on_progress(results)
     if "physics" in sections:
         results["physics"] = []
         dynamic = Config(VIEW_PLANNING, {**VIEW_DEFAULT.kwargs, "motion": "dynamic"})
@@ -97,7 +159,8 @@ def run(sections: list[str], quick: bool, on_section=lambda results: None) -> di
             _progress(f"physics limit: {config.env_id} {config.label}")
             measured = physics.measure(config, max(20, int(steps * scale)), repeats)
             results["physics"].append({"env_id": config.env_id, "mode": config.label, **measured})
-    on_section(results)
+            on_progress(results)
+    on_progress(results)
     if "peers" in sections:
         if peers.available():
             results["peers"] = {}
@@ -105,35 +168,59 @@ def run(sections: list[str], quick: bool, on_section=lambda results: None) -> di
                 _progress(f"peer: {peers.PEER_ENV} render={render}")
                 key = "rgb_84" if render else "no_render"
                 results["peers"][key] = peers.measure(render, max(20, int(steps * scale)), repeats)
+                on_progress(results)
         else:
             results["peers"] = None
-    on_section(results)
+    on_progress(results)
     if "scaling" in sections:
         results["scaling"] = []
         workers = (1, 2) if quick else scaling.WORKERS
+        plan = [
+            (kind, count)
+            for kind in scaling.KINDS
+            for count in (workers if kind != "single" else (1,))
+        ]
         for config, steps in ((VIEW_DEFAULT, 200), (GRASP_STATE, 1000)):
-            for kind in scaling.KINDS:
-                for count in workers if kind != "single" else (1,):
-                    _progress(f"scaling: {config.env_id} {kind} x{count}")
-                    measured = scaling.measure(
-                        config, kind, count, max(20, int(steps * scale)), repeats
+            # Rounds of every vector env in turn, so that a machine whose speed drifts over
+            # minutes slows each of them alike; speed-ups are taken within each round.
+            rates: dict[tuple[str, int], list[float]] = {key: [] for key in plan}
+            for round_ in range(repeats):
+                for kind, count in plan:
+                    _progress(
+                        f"scaling: {config.env_id} {kind} x{count}, round {round_ + 1} of {repeats}"
                     )
-                    results["scaling"].append(
-                        {"env_id": config.env_id, "kind": kind, "workers": count, **measured}
-                    )
-    on_section(results)
+                    measured = scaling.measure(config, kind, count, max(20, int(steps * scale)), 1)
+                    rates[(kind, count)].append(measured["median"])
+            for kind, count in plan:
+                results["scaling"].append(
+                    {
+                        "env_id": config.env_id,
+                        "kind": kind,
+                        "workers": count,
+                        **scaling.summarize(rates[(kind, count)], rates[("single", 1)]),
+                    }
+                )
+            on_progress(results)
+    on_progress(results)
     if "training" in sections:
         results["training"] = {"throughput": []}
         for env_id, algo, steps in training.RUNS:
             _progress(f"training throughput: {env_id} {algo}")
             measured = training.throughput(env_id, algo, max(256, int(steps * scale)))
             results["training"]["throughput"].append({"env_id": env_id, "algo": algo, **measured})
+            on_progress(results)
         _progress("training: time to beat the four-view baseline (default train.py)")
         results["training"]["time_to_beat"] = training.time_to_beat_four_view(
             512 if quick else None
         )
-    on_section(results)
+    on_progress(results)
     return results
+
+
+def _speedup(row: dict, single: dict) -> float:
+    """A scaling row's speed-up over one env: the median of its rounds' ratios, or (reports
+    before rounds) the ratio of medians."""
+    return row["speedup"] if "speedup" in row else row["median"] / single["median"]
 
 
 def _find(rows: list[dict], **match) -> dict | None:
@@ -147,23 +234,26 @@ def targets(results: dict) -> list[tuple]:
     view = _find(rows, env_id=VIEW_PLANNING, mode=VIEW_DEFAULT.label)
     view_gl = _find(rows, env_id=VIEW_PLANNING, mode=throughput.VIEW_DEFAULT_GL.label)
     grasp = _find(rows, env_id=GRASP, mode=GRASP_STATE.label)
+    # The default mode may render with either backend (the issue: "gl or raycast"); the
+    # faster one is scored and named.
+    view = max((r for r in (view, view_gl) if r), key=lambda r: r["median"], default=None)
     if view:
-        best = max(view["median"], view_gl["median"] if view_gl else 0.0)
+        backend = view["mode"].split(",")[0]
         out.append(
             (
-                f"ViewPlanning-v0 default mode, 64x64: >= {VIEW_TARGET:.0f} view-steps/s",
-                f"{best:.0f}",
-                best >= VIEW_TARGET,
+                f"ViewPlanning-v0 default mode ({backend}), 64x64: "
+                f">= {VIEW_TARGET:.0f} view-steps/s",
+                f"{view['median']:.0f}",
+                view["median"] >= VIEW_TARGET,
             )
         )
     peer = results.get("peers")
     if peer and view:
-        ratio = (
-            max(view["median"], view_gl["median"] if view_gl else 0.0) / peer["rgb_84"]["median"]
-        )
+        ratio = view["median"] / peer["rgb_84"]["median"]
         out.append(
             (
-                f"ViewPlanning-v0 / FetchPickAndPlace-v4 with 84x84 RGB: >= {VIEW_PEER_RATIO:.0f}x",
+                f"ViewPlanning-v0 ({backend}) / FetchPickAndPlace-v4 with 84x84 RGB: "
+                f">= {VIEW_PEER_RATIO:.0f}x",
                 f"{ratio:.2f}x",
                 ratio >= VIEW_PEER_RATIO,
             )
@@ -179,7 +269,7 @@ def targets(results: dict) -> list[tuple]:
             )
         )
     limit = _find(results.get("physics") or [], env_id=GRASP)
-    if limit and grasp and limit["limit"]:
+    if limit and grasp and limit.get("limit"):
         fraction = grasp["median"] / limit["limit"]
         out.append(
             (
@@ -189,14 +279,15 @@ def targets(results: dict) -> list[tuple]:
             )
         )
     scaled = results.get("scaling") or []
+    cores = describe_cores(results["machine"])
     for env_id in (VIEW_PLANNING, GRASP):
         single = _find(scaled, env_id=env_id, kind="single")
         two = _find(scaled, env_id=env_id, kind="gymnasium-async", workers=2)
         if single and two:
-            speedup = two["median"] / single["median"]
+            speedup = _speedup(two, single)
             out.append(
                 (
-                    f"{env_id}: async vector env, 2 workers on 2 cores: "
+                    f"{env_id}: async vector env, 2 workers on {cores}: "
                     f">= {ASYNC_TWO_WORKER_SPEEDUP}x one env",
                     f"{speedup:.2f}x",
                     speedup >= ASYNC_TWO_WORKER_SPEEDUP,
@@ -212,7 +303,13 @@ def report(results: dict, command: str) -> str:
     lines = [
         "# Benchmark results",
         "",
-        f"Generated by `{command}` on {m['date']} (commit {m['commit']}).",
+        f"Generated by `{results.get('command') or command}` on {m['date']}"
+        f" (commit {m['commit']}).",
+        *(
+            f"Re-measured later by `{again['command']}` on {again['date']} (commit"
+            f" {again['commit']}): {section}."
+            for section, again in results.get("remeasured", {}).items()
+        ),
         ""
         if not results["quick"]
         else "**Quick run: a smoke test of the benchmark, not a measurement.**\n",
@@ -276,14 +373,14 @@ def report(results: dict, command: str) -> str:
         rows = []
         for r in results["physics"]:
             env = _find(results.get("throughput") or [], env_id=r["env_id"], mode=r["mode"])
-            fraction = f"{env['median'] / r['limit']:.0%}" if env and r["limit"] else "-"
+            fraction = f"{env['median'] / r['limit']:.0%}" if env and r.get("limit") else "-"
             rows.append(
                 (
                     r["env_id"],
                     r["mode"],
-                    f"{r['mj_steps_per_env_step']:.1f}",
-                    f"{r['mj_steps_per_second']:.0f}",
-                    f"{r['limit']:.0f}",
+                    _number(r.get("mj_steps_per_env_step"), ".1f"),
+                    _number(r.get("mj_steps_per_second"), ".0f"),
+                    _number(r.get("limit"), ".0f"),
                     f"{env['median']:.0f}" if env else "-",
                     fraction,
                 )
@@ -345,7 +442,8 @@ def report(results: dict, command: str) -> str:
         lines += [
             "## Vectorised scaling",
             "",
-            "Total env steps/s over all workers; speed-up against one env stepped in-process.",
+            "Total env steps/s over all workers; speed-up against one env stepped in-process"
+            " (measured in rounds, each vector env in turn; the median of the rounds' ratios).",
             "",
         ]
         rows = []
@@ -359,14 +457,14 @@ def report(results: dict, command: str) -> str:
                     _rate(r),
                     f"{r['min']:.0f}",
                     f"{r['max']:.0f}",
-                    f"{r['median'] / single['median']:.2f}x",
+                    f"{_speedup(r, single):.2f}x",
                 )
             )
         lines += _table(
             ("env", "vector env", "workers", "steps/s median", "min", "max", "speed-up"), rows
         )
     if "training" in results:
-        lines += ["## Training throughput (train.py, 2 cores)", ""]
+        lines += [f"## Training throughput (train.py, {describe_cores(m)})", ""]
         lines += _table(
             ("env", "algorithm", "env steps", "seconds", "env steps/s"),
             [
@@ -414,7 +512,15 @@ def main(argv: list[str] | None = None) -> int:
         args.out.write_text(report(results, command.strip()))
         args.out.with_suffix(".json").write_text(json.dumps(results, indent=1, default=str))
 
-    run(args.sections, args.quick, on_section=save)
+    if args.earlier is not None and "command" not in args.earlier:
+        # Reports written before the JSON kept the command: read it off the Markdown.
+        found = (
+            re.search(r"Generated by `([^`]+)`", args.out.read_text())
+            if args.out.exists()
+            else None
+        )
+        args.earlier["command"] = found.group(1) if found else "an earlier command"
+    run(args.sections, args.quick, on_progress=save, earlier=args.earlier, command=command.strip())
     print(args.out.read_text())
     return 0
 

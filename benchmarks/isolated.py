@@ -32,8 +32,15 @@ def run_in_fresh_process(module: str, *args: str, optimize: bool = False) -> dic
 
 
 def peak_rss_mib() -> float:
-    """This process's peak resident memory so far (MiB; Linux reports KiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """This process's peak resident memory so far (MiB). Linux's ``VmHWM``: ``ru_maxrss``
+    would start a child at its parent's peak, as a forked process inherits it."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024  # kB
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
 
 
 def random_action_throughput(env, steps: int, repeats: int, warmup: int) -> dict:

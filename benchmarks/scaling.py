@@ -3,9 +3,16 @@
 Two vector envs are measured: Gymnasium's ``gym.make_vec(..., vectorization_mode="async")``
 and stable-baselines3's ``SubprocVecEnv`` (what ``train.py --vec-env subproc`` uses), each
 against one env stepped in this process. Every measurement runs in a fresh parent process,
-with seeded random actions and the vector env's own autoreset. On a machine with fewer cores
+with seeded random actions and the vector env's own autoreset. Every call of ``step`` is
+counted as one env step per worker, so Gymnasium's vector env resets in the same call as
+the step that ends an episode (``AutoresetMode.SAME_STEP``): with its default,
+``NEXT_STEP``, the call after the last step of an episode only resets, and counting it would
+overstate ViewPlanning-v0 (4-step episodes) by a quarter. SB3's ``SubprocVecEnv`` resets
+in the same call already. On a machine with fewer cores
 than workers, the workers share the cores: the speed-up then measures overhead as much as
-parallelism.
+parallelism. ``python -m benchmarks`` measures every vector env once per round, for several
+rounds, and takes each speed-up within a round: on a machine whose speed drifts over
+minutes, a ratio of two measurements made minutes apart would measure the drift.
 """
 
 from __future__ import annotations
@@ -33,7 +40,11 @@ def _vector_env(config: Config, kind: str, workers: int):
         import liuxing_envs  # noqa: F401
 
         return gym.make_vec(
-            config.env_id, num_envs=workers, vectorization_mode="async", **config.kwargs
+            config.env_id,
+            num_envs=workers,
+            vectorization_mode="async",
+            vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
+            **config.kwargs,
         )
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
@@ -65,6 +76,19 @@ def vector_throughput(config: Config, kind: str, workers: int, steps: int, repea
     rates = sorted(run(steps) for _ in range(repeats))
     env.close()
     return {"median": rates[len(rates) // 2], "min": rates[0], "max": rates[-1]}
+
+
+def summarize(rates: list[float], single_rates: list[float]) -> dict:
+    """Median, min and max of one vector env's rates over rounds, and its speed-up: the median
+    over rounds of its rate against the single env's in the same round."""
+    ordered = sorted(rates)
+    ratios = sorted(r / s for r, s in zip(rates, single_rates, strict=True))
+    return {
+        "median": ordered[len(ordered) // 2],
+        "min": ordered[0],
+        "max": ordered[-1],
+        "speedup": ratios[len(ratios) // 2],
+    }
 
 
 def measure(config: Config, kind: str, workers: int, steps: int, repeats: int = 3) -> dict:

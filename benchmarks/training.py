@@ -4,6 +4,8 @@ four-view baseline on ViewPlanning-v0.
 Throughput: ``train.py`` with each algorithm's YAML for each env, run as a subprocess for a
 fixed number of steps with periodic evaluation and checkpoints off; env steps per second is
 the run's ``timesteps / train_seconds`` from its ``result.json`` (learning only, not start-up).
+SAC runs with ``learning_starts=0``, so every step pays for its gradient update as in the
+rest of a long run (the YAMLs' warm-ups of random steps would be a third of a short one).
 
 Time to beat: the default ``python train.py`` (PPO, ViewPlanning-v0), whose periodic
 evaluation replays the same seeded episodes every ``eval_freq`` steps. The four-view
@@ -47,11 +49,13 @@ def _train(args: list[str], run_dir: Path) -> dict:
 
 def throughput(env_id: str, algo: str, steps: int) -> dict:
     """Env steps/s of ``train.py --env env_id --algo algo`` over ``steps`` steps."""
+    steady = ["--hyperparams", "learning_starts=0"] if algo == "sac" else []
     with tempfile.TemporaryDirectory() as folder:
         result = _train(
             [
                 *("--env", env_id, "--algo", algo, "-n", str(steps)),
                 *("--eval-freq", "0", "--save-freq", "0", "--final-episodes", "0"),
+                *steady,
             ],
             Path(folder) / "run",
         )
