@@ -184,10 +184,7 @@ def run_episodes(
     episodes = []
     for index, seed in enumerate(seeds):
         observation, info = env.reset(seed=int(seed))
-        if not deterministic:
-            import torch  # loaded with the policy already; not needed by baselines
-
-            torch.manual_seed(int(seed))
+        seed_sampling(int(seed), deterministic)
         if hasattr(policy, "reset"):
             policy.reset()
         if recorder is not None:
@@ -209,6 +206,14 @@ def run_episodes(
         if on_episode is not None:
             on_episode()
     return episodes
+
+
+def seed_sampling(seed: int, deterministic: bool) -> None:
+    """Seeds torch's generator, which sampled actions draw from, with an episode's seed."""
+    if not deterministic:
+        import torch  # loaded with the policy already; not needed by baselines
+
+        torch.manual_seed(seed)
 
 
 def _scalar(value):

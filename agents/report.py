@@ -267,8 +267,8 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
         "paired": all(s == scenes[0] for s in scenes),
         "contestants": results,
         "aggregates": [],
+        "aggregate_notes": [],
     }
-    section["aggregate_notes"] = []
     baseline = next((r for r in results if r["label"] == task.baseline), None)
     # Training seeds of one method: the same algorithm run in the same env settings.
     groups: dict[tuple[str, str], list[int]] = {}

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 from agents.contestants import slug
-from agents.evaluation import make_env
+from agents.evaluation import make_env, seed_sampling
 
 #: ViewPlanning episodes are a handful of views: each is held on screen this long.
 VIEW_SECONDS = 1.0
@@ -64,10 +64,7 @@ def record_videos(
             policy = contestant.make_policy(env)
             for seed in seeds:
                 observation, info = env.reset(seed=int(seed))
-                if not deterministic:  # as run_episodes seeds them, so the video is that episode
-                    import torch
-
-                    torch.manual_seed(int(seed))
+                seed_sampling(int(seed), deterministic)  # so the video is the report's episode
                 if hasattr(policy, "reset"):
                     policy.reset()
                 step, done = 0, False

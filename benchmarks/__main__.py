@@ -119,20 +119,15 @@ def run(
     With ``earlier`` (a report's results), its other sections and machine are kept, and the
     sections measured again are listed under ``remeasured`` with ``command``."""
     scale, repeats = (0.1, 1) if quick else (1.0, 3)
-    results: dict = {"machine": machine(), "quick": quick}
+    current = machine()
     if earlier is None:
-        results["command"] = command
+        results: dict = {"machine": current, "quick": quick, "command": command}
     else:
         results = {**earlier, "remeasured": dict(earlier.get("remeasured", {}))}
-        now = results.pop("machine"), machine()
-        results["machine"] = now[0]
+        stamp = {"date": current["date"], "commit": current["commit"], "command": command}
         for section in sections:
             results.pop(section, None)
-            results["remeasured"][section] = {
-                "date": now[1]["date"],
-                "commit": now[1]["commit"],
-                "command": command,
-            }
+            results["remeasured"][section] = stamp
     if "throughput" in sections:
         results["throughput"] = []
         for config in throughput.CONFIGS:
@@ -142,7 +137,6 @@ def run(
                 {"env_id": config.env_id, "mode": config.label, **measured}
             )
             on_progress(results)
-    on_progress(results)
     if "split" in sections:
         results["split"] = []
         for config in time_split.SPLIT_CONFIGS:
@@ -151,7 +145,6 @@ def run(
             measured = time_split.measure(config, steps)
             results["split"].append({"env_id": config.env_id, "mode": config.label, **measured})
             on_progress(results)
-    on_progress(results)
     if "physics" in sections:
         results["physics"] = []
         dynamic = Config(VIEW_PLANNING, {**VIEW_DEFAULT.kwargs, "motion": "dynamic"})
@@ -160,7 +153,6 @@ def run(
             measured = physics.measure(config, max(20, int(steps * scale)), repeats)
             results["physics"].append({"env_id": config.env_id, "mode": config.label, **measured})
             on_progress(results)
-    on_progress(results)
     if "peers" in sections:
         if peers.available():
             results["peers"] = {}
@@ -171,7 +163,6 @@ def run(
                 on_progress(results)
         else:
             results["peers"] = None
-    on_progress(results)
     if "scaling" in sections:
         results["scaling"] = []
         workers = (1, 2) if quick else scaling.WORKERS
@@ -201,7 +192,6 @@ def run(
                     }
                 )
             on_progress(results)
-    on_progress(results)
     if "training" in sections:
         results["training"] = {"throughput": []}
         for env_id, algo, steps in training.RUNS:
@@ -213,7 +203,7 @@ def run(
         results["training"]["time_to_beat"] = training.time_to_beat_four_view(
             512 if quick else None
         )
-    on_progress(results)
+    on_progress(results)  # also when a section measured nothing (peers skipped)
     return results
 
 

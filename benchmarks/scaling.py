@@ -26,7 +26,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from benchmarks.isolated import random_action_throughput, run_in_fresh_process  # noqa: E402
+from benchmarks.isolated import random_action_throughput, run_in_fresh_process, spread  # noqa: E402
 from benchmarks.throughput import Config, make_env  # noqa: E402
 
 WORKERS = (1, 2, 4)
@@ -73,22 +73,16 @@ def vector_throughput(config: Config, kind: str, workers: int, steps: int, repea
         return count * workers / (time.perf_counter() - start)
 
     run(max(1, steps // 4))
-    rates = sorted(run(steps) for _ in range(repeats))
+    rates = [run(steps) for _ in range(repeats)]
     env.close()
-    return {"median": rates[len(rates) // 2], "min": rates[0], "max": rates[-1]}
+    return spread(rates)
 
 
 def summarize(rates: list[float], single_rates: list[float]) -> dict:
     """Median, min and max of one vector env's rates over rounds, and its speed-up: the median
     over rounds of its rate against the single env's in the same round."""
-    ordered = sorted(rates)
-    ratios = sorted(r / s for r, s in zip(rates, single_rates, strict=True))
-    return {
-        "median": ordered[len(ordered) // 2],
-        "min": ordered[0],
-        "max": ordered[-1],
-        "speedup": ratios[len(ratios) // 2],
-    }
+    ratios = [r / s for r, s in zip(rates, single_rates, strict=True)]
+    return {**spread(rates), "speedup": spread(ratios)["median"]}
 
 
 def measure(config: Config, kind: str, workers: int, steps: int, repeats: int = 3) -> dict:
