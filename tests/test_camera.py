@@ -485,6 +485,63 @@ def test_raycast_table_shortcut_stays_off_where_it_would_not_pay_or_be_exact(obj
             )
 
 
+def _tabletop_with_a_mesh(share_body: bool) -> mujoco.MjModel:
+    """The table and floor, an octahedron mesh on a mocap body (with a sphere beside it on
+    the same body when ``share_body``), a box on another mocap body, and a free camera."""
+    spec = load_scene_spec()
+    spec.delete(spec.body(ARM_BASE_BODY))
+    for key in list(spec.keys):
+        spec.delete(key)
+    vertices = 0.06 * np.array(
+        [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]]
+    )
+    faces = [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]
+    spec.add_mesh(name="octahedron", uservert=vertices.ravel().tolist(), userface=np.ravel(faces))
+    solid = spec.worldbody.add_body(name="solid", mocap=True, pos=BOX_POS + np.array([0, 0, 0.05]))
+    solid.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="octahedron")
+    if share_body:
+        solid.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.03, 0, 0], pos=[0.1, 0, 0])
+    other = spec.worldbody.add_body(name="other", mocap=True, pos=CYLINDER_POS)
+    other.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=BOX_HALF)
+    rig = spec.worldbody.add_body(name="rig", mocap=True)
+    rig.add_camera(name="probe")
+    return spec.compile()
+
+
+@pytest.mark.parametrize("share_body", [False, True])
+def test_embree_backend_agrees_with_raycast_and_falls_back_where_it_cannot_split(share_body):
+    # Meshes alone on their body go to Embree (float32: micrometres apart, the same pixels);
+    # a mesh sharing its body with another geom cannot be left out of mj_multiRay, so the
+    # whole image is cast as by the ray-cast backend, bit for bit.
+    model = _tabletop_with_a_mesh(share_body)
+    data = mujoco.MjData(model)
+    rig, solid = model.body("rig").mocapid[0], model.body("solid").mocapid[0]
+    rng = np.random.default_rng(1)
+    seen = 0
+    with (
+        DepthCamera(model, "probe", backend="raycast") as cast,
+        DepthCamera(model, "probe", backend="embree") as embree,
+    ):
+        assert embree.backend == "embree"
+        for _ in range(30):
+            target = BOX_POS + rng.uniform(-0.05, 0.05, 3)
+            eye = target + rng.uniform([-0.5, -0.5, 0.1], [0.5, 0.5, 0.6])
+            data.mocap_pos[rig] = eye
+            data.mocap_quat[rig] = _look_at_quat(eye, target)
+            yaw = rng.uniform(0, np.pi)
+            data.mocap_quat[solid] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
+            mujoco.mj_kinematics(model, data)
+            expected, image = cast.render(data), embree.render(data)
+            if share_body:
+                np.testing.assert_array_equal(image, expected)
+            else:
+                np.testing.assert_array_equal(image > 0, expected > 0)
+                np.testing.assert_allclose(image, expected, rtol=0, atol=2e-5)
+            seen += not np.array_equal(image, expected)
+        assert embree._require_open()._meshes or share_body
+    assert (seen == 0) if share_body else (seen >= 10)  # the octahedron was in most views
+
+
 def test_noise_pushing_depth_out_of_range_reads_zero():
     intr = CameraIntrinsics(min_depth=0.2, max_depth=1.0)
     depth = np.full((intr.height, intr.width), 0.999, dtype=np.float32)

@@ -412,6 +412,33 @@ def test_ray_cast_stand_in_scene_gives_the_live_models_image(motion):
     env.close()
 
 
+def test_embree_backend_sees_what_the_raycast_backend_sees():
+    # Embree (float32) casts the rays against the object's mesh; MuJoCo casts the rest. Same
+    # pixels with a return, depths within micrometres, so the same fused map and coverage.
+    episodes = {}
+    for backend in ("raycast", "embree"):
+        env = ViewPlanningEnv(depth_backend=backend, objects=["mug", "bowl", "l_bracket"])
+        env.action_space.seed(0)
+        images, coverages = [], []
+        for seed in range(6):
+            env.reset(seed=seed)
+            images.append(env._depth.copy())
+            for _ in range(4):
+                _, _, _, _, info = env.step(env.action_space.sample())
+                images.append(env._depth.copy())
+                coverages.append(info["coverage"])
+        episodes[backend] = (np.array(images), np.array(coverages))
+        if backend == "embree":
+            assert env.camera._require_open()._meshes  # the object went through Embree
+        env.close()
+    (cast, cast_coverage), (embree, embree_coverage) = episodes["raycast"], episodes["embree"]
+    np.testing.assert_array_equal(cast > 0, embree > 0)
+    assert (cast > 0).mean() > 0.5
+    np.testing.assert_allclose(embree, cast, rtol=0, atol=2e-5)
+    assert not np.array_equal(embree, cast)  # float32 hits: Embree really cast them
+    np.testing.assert_array_equal(embree_coverage, cast_coverage)
+
+
 def test_collision_checks_in_the_stand_in_scene_match_the_live_model():
     # The arm plans in a per-variant copy of the scene (faster kinematics); every path check
     # and IK collision verdict must be the one the full live model gives.

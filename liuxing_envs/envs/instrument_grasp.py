@@ -277,7 +277,8 @@ class InstrumentGraspEnv(gym.Env):
     environment itself never truncates.
 
     **Arguments**: every keyword above, ``resolution`` (square image side, pixels),
-    ``depth_backend`` (``"gl"``, ``"raycast"`` or ``"auto"``) and ``render_mode``
+    ``depth_backend`` (``"gl"``, ``"raycast"``, ``"embree"`` or ``"auto"``; the
+    instruments are primitives, so embree casts as raycast does) and ``render_mode``
     (``"rgb_array"``: the overview camera, pads shaded white to red with their force).
 
     **Version history.** v0: initial release; ``gripper_control="delta"`` and

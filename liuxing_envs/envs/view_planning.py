@@ -32,7 +32,13 @@ from liuxing_envs.perception.fusion import VoxelMap
 from liuxing_envs.perception.pointcloud import crop_points
 from liuxing_envs.perception.reconstruction import Reconstruction, reconstruct
 from liuxing_envs.sim.arm import MOTION_MODES, Arm
-from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera, DepthNoise
+from liuxing_envs.sim.camera import (
+    BACKENDS,
+    RAY_CAST_BACKENDS,
+    CameraIntrinsics,
+    DepthCamera,
+    DepthNoise,
+)
 from liuxing_envs.sim.object_stage import ObjectStage, PlacedObject
 from liuxing_envs.sim.objects import (
     OBJECT_SETS,
@@ -199,7 +205,8 @@ class ViewPlanningEnv(gym.Env):
     validation families are for choosing a model, held-out ones for reporting it), ``objects``
     (list of library names or mesh files .obj/.stl/.ply, scaled to ``USER_MESH_SIZE``; overrides
     ``object_set``), ``scales``, ``object_region``, ``resolution`` (square depth image side),
-    ``depth_backend`` ({"auto", "gl", "raycast"}), ``depth_noise`` (a ``DepthNoise`` or None),
+    ``depth_backend`` ({"auto", "gl", "raycast", "embree"}; embree is the fastest, see
+    ``liuxing_envs.sim.camera``), ``depth_noise`` (a ``DepthNoise`` or None),
     the action ranges above, ``coverage_samples``, ``epsilon_fraction``, ``success_coverage``,
     ``terminate_on_success``, ``coverage_reward_scale``, ``motion_cost``, ``refusal_penalty``,
     ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``,
@@ -218,6 +225,7 @@ class ViewPlanningEnv(gym.Env):
     and depth disagreed) and ``reachable`` means a path was found; ``preview_view`` restores
     the dynamic state exactly; the history's radius feature stays in [0, 1] with a
     ``discrete_radius`` outside ``radius_range``; the env can be reset after ``close()``.
+    Added within v0 (2026-11-23): ``depth_backend="embree"``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -686,7 +694,7 @@ class ViewPlanningEnv(gym.Env):
     def _render_depth(self, rng: np.random.Generator | None) -> np.ndarray:
         """Depth at the live state; rays are cast in the placed variant's stand-in scene."""
         camera = self.camera
-        if camera.backend != "raycast":
+        if camera.backend not in RAY_CAST_BACKENDS:
             return camera.render(self.data, rng=rng)
         scenes = self._variant_scenes[(self.placed.name, self.placed.scale)]
         scene = scenes.ray_scene(self.data, self.placed, camera)

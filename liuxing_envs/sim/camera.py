@@ -1,6 +1,6 @@
 """A simulated depth camera (RealSense D435-like) on a MuJoCo camera, with optional noise.
 
-Two interchangeable backends produce the same depth image:
+Three interchangeable backends produce the same depth image:
 
 * ``"gl"``: MuJoCo's OpenGL renderer (:class:`mujoco.Renderer`) reading the depth buffer.
   Needs an OpenGL context; on a headless machine set ``MUJOCO_GL=egl`` (or ``osmesa``)
@@ -10,8 +10,11 @@ Two interchangeable backends produce the same depth image:
   differ by a fraction of a millimetre on spheres and cylinders). In a tabletop scene, rays
   that can only land on the table top are solved in numpy with MuJoCo's arithmetic instead
   (:class:`_TableShortcut`; the image is unchanged, bit for bit).
+* ``"embree"``: the ray-cast backend with mesh geoms intersected by Embree (open3d's
+  ``RaycastingScene``) in float32 (:class:`_EmbreeBackend`): the same pixels hold returns,
+  depths agree to a few micrometres, and a view of a mesh object costs a fraction.
 
-Both see the geoms in :data:`DEPTH_GEOM_GROUPS` and nothing else (no sites, tendons, ...).
+All see the geoms in :data:`DEPTH_GEOM_GROUPS` and nothing else (no sites, tendons, ...).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ __all__ = [
     "DEFAULT_BACKEND",
     "DEFAULT_INTRINSICS",
     "DEPTH_GEOM_GROUPS",
+    "RAY_CAST_BACKENDS",
     "REALSENSE_D435_DEPTH",
     "CameraIntrinsics",
     "DepthCamera",
@@ -60,7 +64,9 @@ DEFAULT_MAX_DEPTH = 3.0
 #: geoms by convention) are invisible to the camera.
 DEPTH_GEOM_GROUPS: tuple[int, ...] = (0, 1, 2)
 
-BACKENDS: tuple[str, ...] = ("auto", "gl", "raycast")
+BACKENDS: tuple[str, ...] = ("auto", "gl", "raycast", "embree")
+#: The backends that cast rays, which can cast them into a stand-in scene (``render(scene=)``).
+RAY_CAST_BACKENDS: tuple[str, ...] = ("raycast", "embree")
 DEFAULT_BACKEND = "auto"
 
 # RealSense-like noise preset. Stereo depth error grows with z^2: sigma_z = z^2 * e / (f * b)
@@ -467,6 +473,16 @@ class _GLBackend:
             self._renderer = None
 
 
+def _ray_visible(model: mujoco.MjModel, geomgroup: np.ndarray) -> np.ndarray:
+    """Per geom: whether ``mj_multiRay`` with this group mask can hit it (a geom in one of
+    the groups and not fully transparent)."""
+    matid = model.geom_matid
+    material_alpha = model.mat_rgba[np.maximum(matid, 0), 3]
+    alpha = np.where(matid >= 0, material_alpha, model.geom_rgba[:, 3])
+    group = np.clip(model.geom_group, 0, mujoco.mjNGROUP - 1)
+    return (geomgroup[group] != 0) & (alpha != 0)
+
+
 class _TableShortcut:
     """Pixel rays that can only land on a table top, answered without casting them.
 
@@ -499,12 +515,7 @@ class _TableShortcut:
     ) -> _TableShortcut | None:
         """The shortcut for this model (static geoms posed in ``data``), or None."""
         ids = np.arange(model.ngeom)
-        matid = model.geom_matid
-        material_alpha = model.mat_rgba[np.maximum(matid, 0), 3]
-        alpha = np.where(matid >= 0, material_alpha, model.geom_rgba[:, 3])
-        group = np.clip(model.geom_group, 0, mujoco.mjNGROUP - 1)
-        # What mj_multiRay sees: geoms in the groups and not fully transparent.
-        seen = (geomgroup[group] != 0) & (alpha != 0)
+        seen = _ray_visible(model, geomgroup)
         static = seen & (model.body_weldid[model.geom_bodyid] == 0)
         identity = (data.geom_xmat == np.eye(3).ravel()).all(axis=1)
         boxes = ids[static & identity & (model.geom_type == mujoco.mjtGeom.mjGEOM_BOX)]
@@ -615,7 +626,10 @@ class _RaycastBackend:
         position: np.ndarray,
         rays: np.ndarray,
         dist: np.ndarray,
+        exclude_body: int = -1,
     ) -> None:
+        """Cast ``rays`` from ``position`` into ``dist`` (-1 where nothing is hit). No body is
+        excluded by default: the camera housing is behind the optical centre."""
         count = rays.shape[0]
         mujoco.mj_multiRay(
             model,
@@ -624,7 +638,7 @@ class _RaycastBackend:
             np.ascontiguousarray(rays).reshape(-1),
             self._geomgroup,
             1,  # flg_static: the table and other world geoms are visible
-            -1,  # bodyexclude: none (the camera housing is behind the optical centre)
+            exclude_body,
             self._geomid[:count],
             dist,
             None,
@@ -640,6 +654,69 @@ class _RaycastBackend:
 
     def close(self) -> None:
         pass
+
+
+class _EmbreeBackend(_RaycastBackend):
+    """The ray-cast backend with triangle meshes handed to Embree.
+
+    ``mj_multiRay`` tests a ray against a mesh geom triangle by triangle in the mesh's
+    bounding box, which makes an object of a few thousand faces the dearest part of an image.
+    Here the rays the table shortcut leaves are cast twice: with ``mj_multiRay`` against
+    everything but the body holding the meshes in view (``bodyexclude``), and with open3d's
+    :class:`RaycastingScene` (Intel Embree's BVH) against those meshes, each in its own frame;
+    a ray keeps the nearer hit. Embree works in float32, so depths differ from the ray-cast
+    backend's by a few micrometres (``tests/test_camera.py`` bounds this); which pixels hold a
+    return is the same. Images without a mesh in view, or whose meshes are on more than one
+    body or share their body with other geoms, are cast as by the ray-cast backend.
+    """
+
+    name = "embree"
+
+    def __init__(self, *args) -> None:
+        super().__init__(*args)
+        import open3d  # ~1 s, so only when this backend is chosen
+
+        self._o3d = open3d
+        # Per (model, mesh id): the mesh's RaycastingScene, in the mesh geom's frame.
+        self._meshes: dict[tuple[mujoco.MjModel, int], object] = {}
+        self._embree_rays = np.empty((self._nray, 6), dtype=np.float32)
+
+    def _cast(self, model: mujoco.MjModel, data: mujoco.MjData, position, rays, dist) -> None:
+        # Seen meshes are recomputed per image: a model may show and park geoms by group.
+        meshes = np.flatnonzero(
+            (model.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & _ray_visible(model, self._geomgroup)
+        )
+        bodies = np.unique(model.geom_bodyid[meshes])
+        if bodies.size != 1 or model.body_geomnum[bodies[0]] != meshes.size:
+            super()._cast(model, data, position, rays, dist)
+            return
+        super()._cast(model, data, position, rays, dist, exclude_body=int(bodies[0]))
+        count = rays.shape[0]
+        nearest = np.where(dist >= 0.0, dist, np.inf)
+        local = self._embree_rays[:count]
+        for geom in meshes:
+            rotation = data.geom_xmat[geom].reshape(3, 3)
+            local[:, :3] = (position - data.geom_xpos[geom]) @ rotation
+            local[:, 3:] = rays @ rotation
+            hits = self._mesh_scene(model, int(model.geom_dataid[geom])).cast_rays(
+                self._o3d.core.Tensor.from_numpy(local), nthreads=1
+            )
+            np.minimum(nearest, hits["t_hit"].numpy(), out=nearest)
+        dist[:] = np.where(nearest <= self._cutoff, nearest, -1.0)
+
+    def _mesh_scene(self, model: mujoco.MjModel, mesh: int):
+        key = (model, mesh)
+        if key not in self._meshes:
+            o3d = self._o3d
+            first, faces = model.mesh_faceadr[mesh], model.mesh_facenum[mesh]
+            start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+            scene = o3d.t.geometry.RaycastingScene()
+            scene.add_triangles(
+                o3d.core.Tensor(model.mesh_vert[start : start + count].astype(np.float32)),
+                o3d.core.Tensor(model.mesh_face[first : first + faces].astype(np.uint32)),
+            )
+            self._meshes[key] = scene
+        return self._meshes[key]
 
 
 # --- the camera ------------------------------------------------------------------------------
@@ -670,12 +747,12 @@ class DepthCamera:
     intrinsics
         Image size, field of view and valid range.
     backend
-        ``"gl"``, ``"raycast"``, or ``"auto"`` (gl when an OpenGL context can be made, else
-        raycast with a warning). :attr:`backend` says which one is in use.
+        ``"gl"``, ``"raycast"``, ``"embree"``, or ``"auto"`` (gl when an OpenGL context can be
+        made, else raycast with a warning). :attr:`backend` says which one is in use.
     noise
         Optional :class:`DepthNoise`; when it is enabled, :meth:`render` needs an ``rng``.
     geom_groups
-        Geom groups the camera sees (both backends).
+        Geom groups the camera sees (every backend).
     """
 
     def __init__(
@@ -751,6 +828,8 @@ class DepthCamera:
             return _GLBackend(*args)
         if backend == "raycast":
             return _RaycastBackend(*args)
+        if backend == "embree":
+            return _EmbreeBackend(*args)
         try:
             return _GLBackend(*args)
         except Exception as exc:  # any failure to get a GL context means: no GL here
@@ -778,11 +857,11 @@ class DepthCamera:
         from them here with :func:`mujoco.mj_camlight`. ``rng`` drives the noise model and is
         required when :attr:`noise` is enabled.
 
-        ``scene`` (ray-cast backend only): a ``(model, data)`` pair whose geoms the rays are
-        cast against instead of ``data``'s own, for instance a stand-in holding only what
-        :meth:`may_see_geoms` allows to be in view (each geom and body of a model costs every ray a
-        bounding test). The camera pose is still read from ``data``; the stand-in's geoms
-        must be posed in the same world frame.
+        ``scene`` (the ray-casting backends, raycast and embree, only): a ``(model, data)``
+        pair whose geoms the rays are cast against instead of ``data``'s own, for instance a
+        stand-in holding only what :meth:`may_see_geoms` allows to be in view (each geom and
+        body of a model costs every ray a bounding test). The camera pose is still read from
+        ``data``; the stand-in's geoms must be posed in the same world frame.
         """
         backend = self._require_open()
         if self.noise.enabled and rng is None:
@@ -791,7 +870,10 @@ class DepthCamera:
                 "render(data, rng=numpy.random.default_rng(seed))"
             )
         if scene is not None and not isinstance(backend, _RaycastBackend):
-            raise ValueError("DepthCamera.render: a stand-in scene needs the raycast backend")
+            raise ValueError(
+                f"DepthCamera.render: a stand-in scene needs one of the ray-casting backends "
+                f"{list(RAY_CAST_BACKENDS)}, not {backend.name!r}"
+            )
         # Another DepthCamera on the same MuJoCo camera may have set a different fovy.
         self.model.cam_fovy[self.camera_id] = self.intrinsics.fovy_deg
         mujoco.mj_camlight(self.model, data)
