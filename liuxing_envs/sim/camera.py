@@ -687,10 +687,10 @@ class _EmbreeBackend(_RaycastBackend):
             (model.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & _ray_visible(model, self._geomgroup)
         )
         bodies = np.unique(model.geom_bodyid[meshes])
-        if bodies.size != 1 or model.body_geomnum[bodies[0]] != meshes.size:
-            super()._cast(model, data, position, rays, dist)
+        split = bodies.size == 1 and model.body_geomnum[bodies[0]] == meshes.size
+        super()._cast(model, data, position, rays, dist, int(bodies[0]) if split else -1)
+        if not split:
             return
-        super()._cast(model, data, position, rays, dist, exclude_body=int(bodies[0]))
         count = rays.shape[0]
         nearest = np.where(dist >= 0.0, dist, np.inf)
         local = self._embree_rays[:count]
@@ -869,7 +869,7 @@ class DepthCamera:
                 "DepthCamera.render: the noise model is enabled, so an rng is required, e.g. "
                 "render(data, rng=numpy.random.default_rng(seed))"
             )
-        if scene is not None and not isinstance(backend, _RaycastBackend):
+        if scene is not None and backend.name not in RAY_CAST_BACKENDS:
             raise ValueError(
                 f"DepthCamera.render: a stand-in scene needs one of the ray-casting backends "
                 f"{list(RAY_CAST_BACKENDS)}, not {backend.name!r}"
