@@ -88,11 +88,13 @@ _GL_MIN_STACKS = 24
 # cut-off never clips a return that the range crop would keep.
 _RAY_CUTOFF_MARGIN = 1.01
 
-# The ray-cast backend's table shortcut (see _TableShortcut) is used only with this many
-# obstacles or fewer. With the arm in the scene (a dozen geoms, two of whose bounding
-# spheres hold the wrist camera itself) it answered no ray and made a 64x64 image cost 3.3
-# ms instead of 2.7 (VP stand-in with the arm, 419 images, measured on a slow 2-core day).
-_SHORTCUT_MAX_OBSTACLES = 4
+# The ray-cast backend's table shortcut (see _TableShortcut) answers an image only when this
+# many obstacles or fewer are in the field of view: each costs every ray a sphere test. In
+# ViewPlanning-v0's views that show arm links, 2-7 are (the object and the links).
+_SHORTCUT_MAX_OBSTACLES = 8
+# Scenes with more obstacles than this get no shortcut: the per-image frustum test would not
+# pay. InstrumentGrasp-v0's (29-34: tray walls, instrument parts, gripper) keep 10-22 in view.
+_SHORTCUT_MAX_SCENE_OBSTACLES = 20
 # Safety margins of the shortcut's tests, in metres: rays this close to an obstacle's
 # bounding sphere or to the table's edge are cast rather than solved in numpy.
 _SHORTCUT_SPHERE_MARGIN = 1e-6
@@ -370,6 +372,45 @@ class DepthNoise:
 # --- backends --------------------------------------------------------------------------------
 
 
+class _ViewFrustum:
+    """What a camera's pixel rays can reach: the planes through the optical centre that bound
+    every pixel ray (the four image edges, and the image plane itself: rays only go
+    forward), and the ray length beyond which nothing returns a depth in range."""
+
+    def __init__(self, intrinsics: CameraIntrinsics) -> None:
+        self.ray_length = _ray_cutoff(intrinsics)
+        tan_y = math.tan(math.radians(intrinsics.fovy_deg) / 2)
+        tan_x = tan_y * intrinsics.width / intrinsics.height
+        # Unit outward normals in the camera frame (+z is back).
+        planes = np.array(
+            [[1, 0, tan_x], [-1, 0, tan_x], [0, 1, tan_y], [0, -1, tan_y], [0, 0, 1]], float
+        )
+        self._planes = planes / np.linalg.norm(planes, axis=1, keepdims=True)
+
+    def may_reach(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        geom_ids: np.ndarray,
+        position: np.ndarray,
+        rotation: np.ndarray,
+    ) -> np.ndarray:
+        """Per geom: False when it lies out of reach of every ray from a camera at
+        ``position`` with axes ``rotation`` (columns); conservative, as
+        :meth:`DepthCamera.may_see_geoms` documents."""
+        ids = np.asarray(geom_ids, dtype=np.intp)
+        offset = data.geom_xpos[ids] - position
+        box = model.geom_aabb[ids]
+        normals = self._planes @ rotation.T  # (5, 3) outward normals in the world
+        # Nearest point of each box to each plane (signed, > 0 outside): its centre's offset
+        # minus the half-sizes weighted by how far each box axis leans along the normal.
+        normals_in_geom = normals @ data.geom_xmat[ids].reshape(-1, 3, 3)  # (geom, plane, xyz)
+        nearest = offset @ normals.T + (normals_in_geom @ box[:, :3, None])[..., 0]
+        nearest -= (np.abs(normals_in_geom) @ box[:, 3:, None])[..., 0]
+        in_range = np.sqrt(np.einsum("ni,ni->n", offset, offset)) - model.geom_rbound[ids]
+        return (in_range <= self.ray_length) & (nearest <= 0.0).all(axis=1)
+
+
 class _Backend(Protocol):
     name: str
 
@@ -483,6 +524,16 @@ def _ray_visible(model: mujoco.MjModel, geomgroup: np.ndarray) -> np.ndarray:
     return (geomgroup[group] != 0) & (alpha != 0)
 
 
+def _ray_visibility_inputs(model: mujoco.MjModel) -> tuple[bytes, ...]:
+    """What :func:`_ray_visible` reads of a model (a few µs; it takes about 20)."""
+    return (
+        model.geom_group.tobytes(),
+        model.geom_rgba[:, 3].tobytes(),
+        model.geom_matid.tobytes(),
+        model.mat_rgba[:, 3].tobytes(),
+    )
+
+
 class _TableShortcut:
     """Pixel rays that can only land on a table top, answered without casting them.
 
@@ -491,12 +542,17 @@ class _TableShortcut:
     64x64 image's cost is rays that simply land on the table. The table is the static,
     axis-aligned box geom with the largest top face; the obstacles are every other geom a ray
     could meet first: the movable ones and the static ones rising above that face. A ray
-    from a camera above the face that meets it inside its rectangle, and passes outside
-    every obstacle's bounding sphere, lands there first. Its distance is computed here with
-    the same floating-point operations as MuJoCo's ray-box test, so the image is bit for bit
-    the one ``mj_multiRay`` gives (``tests/test_camera.py`` checks this on random views);
-    every other ray is cast. Scenes without such a table, with a static plane above it, or
-    with more than ``_SHORTCUT_MAX_OBSTACLES`` obstacles get ``None`` from :meth:`for_scene`.
+    from a camera above the face that meets it inside its rectangle, and misses every
+    obstacle's bounding box (tested only for the rays that pass within its bounding sphere),
+    lands there first. Its distance is computed here with the same floating-point operations
+    as MuJoCo's ray-box test, so the image is bit for bit the one ``mj_multiRay`` gives
+    (``tests/test_camera.py`` checks this on random views); every other ray is cast. Scenes
+    without such a table, with a static plane above it, or with more than
+    ``_SHORTCUT_MAX_SCENE_OBSTACLES`` obstacles get ``None`` from :meth:`for_scene`. When
+    there are more than ``_SHORTCUT_MAX_OBSTACLES``, as with the arm in the scene, the
+    ray-cast backend leaves out those outside each image's field of view
+    (:class:`_ViewFrustum`): the wrist camera lies inside the bounding spheres of its own
+    housing, which is behind the image plane.
     """
 
     def __init__(
@@ -508,14 +564,17 @@ class _TableShortcut:
         self.obstacles = obstacles
         radii = model.geom_rbound[obstacles] + _SHORTCUT_SPHERE_MARGIN
         self.radii2 = radii * radii
+        # Each obstacle's bounding box in its own frame (centre, half-sizes with margin).
+        self.box_centres = model.geom_aabb[obstacles, :3].copy()
+        self.box_halves = model.geom_aabb[obstacles, 3:] + _SHORTCUT_SPHERE_MARGIN
 
     @classmethod
     def for_scene(
-        cls, model: mujoco.MjModel, data: mujoco.MjData, geomgroup: np.ndarray
+        cls, model: mujoco.MjModel, data: mujoco.MjData, seen: np.ndarray
     ) -> _TableShortcut | None:
-        """The shortcut for this model (static geoms posed in ``data``), or None."""
+        """The shortcut for this model (static geoms posed in ``data``; ``seen``: the geoms
+        rays can hit, from :func:`_ray_visible`), or None."""
         ids = np.arange(model.ngeom)
-        seen = _ray_visible(model, geomgroup)
         static = seen & (model.body_weldid[model.geom_bodyid] == 0)
         identity = (data.geom_xmat == np.eye(3).ravel()).all(axis=1)
         boxes = ids[static & identity & (model.geom_type == mujoco.mjtGeom.mjGEOM_BOX)]
@@ -537,16 +596,30 @@ class _TableShortcut:
         rising = static & ~planes & (highest > top)
         rising[table] = False
         obstacles = ids[(seen & ~static) | rising]
-        if obstacles.size > _SHORTCUT_MAX_OBSTACLES or (model.geom_rbound[obstacles] <= 0).any():
+        if (
+            obstacles.size > _SHORTCUT_MAX_SCENE_OBSTACLES
+            or (model.geom_rbound[obstacles] <= 0).any()
+        ):
             return None
         return cls(model, data, table, obstacles)
 
     def solve(
-        self, data: mujoco.MjData, position: np.ndarray, rays: np.ndarray, cutoff: float
+        self,
+        data: mujoco.MjData,
+        position: np.ndarray,
+        rays: np.ndarray,
+        cutoff: float,
+        in_view: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """``(dist, to_cast)``: the table distances of the rays it answers (-1 elsewhere) and
-        the indices of the rays still to cast; None when the camera is not above the table
-        or the table is beyond the cut-off (then every ray is cast)."""
+        the indices of the rays still to cast; None when the camera is not above the table,
+        the table is beyond the cut-off, or more than ``_SHORTCUT_MAX_OBSTACLES`` obstacles
+        are in view (then every ray is cast). ``in_view`` (a mask over :attr:`obstacles`)
+        leaves out the obstacles no ray can reach."""
+        kept = slice(None) if in_view is None else in_view
+        obstacles = self.obstacles[kept]
+        if obstacles.size > _SHORTCUT_MAX_OBSTACLES:
+            return None
         offset = position - self.position  # MuJoCo's ray in the (unrotated) box frame
         if offset[2] <= self.half[2]:
             return None
@@ -561,14 +634,40 @@ class _TableShortcut:
         answered &= (edge_x <= self.half[0] - _SHORTCUT_EDGE_MARGIN) & (
             edge_y <= self.half[1] - _SHORTCUT_EDGE_MARGIN
         )
-        if self.obstacles.size:
-            centres = data.geom_xpos[self.obstacles] - position  # (k, 3)
+        if obstacles.size:
+            # Bounding spheres first (cheap), then the rays that pass near one are tested
+            # against every obstacle's oriented bounding box.
+            centres = data.geom_xpos[obstacles] - position  # (k, 3)
             along = rays @ centres.T  # (rays, k)
             gap2 = np.einsum("ki,ki->k", centres, centres) - along * along
-            answered &= ~(gap2 <= self.radii2).any(axis=1)
+            near = np.flatnonzero(answered & (gap2 <= self.radii2[kept]).any(axis=1))
+            if near.size:
+                answered[near] = ~self._meets_a_box(data, obstacles, kept, position, rays[near])
         missed = ~answered
         dist[missed] = -1.0
         return dist, np.flatnonzero(missed)
+
+    def _meets_a_box(
+        self, data: mujoco.MjData, obstacles: np.ndarray, kept, position: np.ndarray, rays
+    ) -> np.ndarray:
+        """Per ray: whether it may enter an obstacle's bounding box ahead of the camera
+        (slab test in each box's frame; True also where the arithmetic gives NaN)."""
+        frames = data.geom_xmat[obstacles].reshape(-1, 3, 3)  # columns: geom axes in the world
+        origins = np.einsum("ki,kij->kj", position - data.geom_xpos[obstacles], frames)
+        origins -= self.box_centres[kept]
+        halves = self.box_halves[kept]
+        enter = leave = None
+        # One box axis at a time on (rays, k) arrays: numpy reduces a length-3 axis slowly.
+        for axis in range(3):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                inverse = 1.0 / (rays @ frames[:, :, axis].T)
+                low = (-halves[:, axis] - origins[:, axis]) * inverse
+                high = (halves[:, axis] - origins[:, axis]) * inverse
+            near, far = np.minimum(low, high), np.maximum(low, high)
+            enter = near if enter is None else np.maximum(enter, near)
+            leave = far if leave is None else np.minimum(leave, far)
+        misses = (enter > leave) | (leave < 0.0)
+        return ~misses.all(axis=1)
 
 
 class _RaycastBackend:
@@ -594,9 +693,11 @@ class _RaycastBackend:
         self._nray = unit_rays.shape[0]
         self._geomid = np.empty(self._nray, dtype=np.int32)
         self._dist = np.empty(self._nray, dtype=np.float64)
-        self._cutoff = _ray_cutoff(intrinsics)
-        # Per scene model (MjModel hashes by identity): its _TableShortcut, or None.
-        self._shortcuts: dict[mujoco.MjModel, _TableShortcut | None] = {}
+        self._frustum = _ViewFrustum(intrinsics)
+        self._cutoff = self._frustum.ray_length
+        # Per scene model (MjModel hashes by identity): its _TableShortcut (or None) and the
+        # _ray_visibility_inputs it was made with.
+        self._shortcuts: dict[mujoco.MjModel, tuple[tuple, _TableShortcut | None]] = {}
 
     def render(
         self, data: mujoco.MjData, scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None
@@ -606,7 +707,14 @@ class _RaycastBackend:
         rays = self._rays_cam @ rotation.T
         model, data = (self._model, data) if scene is None else scene
         shortcut = self._shortcut(model, data)
-        solved = None if shortcut is None else shortcut.solve(data, position, rays, self._cutoff)
+        solved = None
+        if shortcut is not None:
+            in_view = None
+            if shortcut.obstacles.size > _SHORTCUT_MAX_OBSTACLES:
+                in_view = self._frustum.may_reach(
+                    model, data, shortcut.obstacles, position, rotation
+                )
+            solved = shortcut.solve(data, position, rays, self._cutoff, in_view)
         if solved is None:
             dist = self._dist
             self._cast(model, data, position, rays, dist)
@@ -647,10 +755,14 @@ class _RaycastBackend:
         )
 
     def _shortcut(self, model: mujoco.MjModel, data: mujoco.MjData) -> _TableShortcut | None:
-        """The scene's table shortcut, found on the first image of each model and kept."""
-        if model not in self._shortcuts:
-            self._shortcuts[model] = _TableShortcut.for_scene(model, data, self._geomgroup)
-        return self._shortcuts[model]
+        """The scene's table shortcut, made again whenever the geoms rays can see change: a
+        model may show and park geoms by group (ObjectStage does)."""
+        inputs = _ray_visibility_inputs(model)
+        made = self._shortcuts.get(model)
+        if made is None or made[0] != inputs:
+            seen = _ray_visible(model, self._geomgroup)
+            made = self._shortcuts[model] = (inputs, _TableShortcut.for_scene(model, data, seen))
+        return made[1]
 
     def close(self) -> None:
         pass
@@ -791,16 +903,7 @@ class DepthCamera:
         self.geom_groups = groups
 
         model.cam_fovy[camera_id] = intrinsics.fovy_deg
-        # Rays longer than this cannot return a depth in range (see _ray_cutoff).
-        self._ray_length = _ray_cutoff(intrinsics)
-        # Unit outward normals, in the camera frame, of the planes through the optical centre
-        # that bound every pixel ray: the four image edges, then the image plane (+z is back).
-        tan_y = math.tan(math.radians(intrinsics.fovy_deg) / 2)
-        tan_x = tan_y * intrinsics.width / intrinsics.height
-        planes = np.array(
-            [[1, 0, tan_x], [-1, 0, tan_x], [0, 1, tan_y], [0, -1, tan_y], [0, 0, 1]], float
-        )
-        self._view_planes = planes / np.linalg.norm(planes, axis=1, keepdims=True)
+        self._frustum = _ViewFrustum(intrinsics)
         # A non-zero sensor size makes MuJoCo project with cam_intrinsic instead of fovy.
         model.cam_sensorsize[camera_id] = 0.0
 
@@ -894,17 +997,7 @@ class DepthCamera:
         sphere lies beyond the ray-cast backend's ray length.
         """
         position, rotation = self.pose(data)
-        ids = np.asarray(geom_ids, dtype=np.intp)
-        offset = data.geom_xpos[ids] - position
-        box = self.model.geom_aabb[ids]
-        normals = self._view_planes @ rotation.T  # (5, 3) outward normals in the world
-        # Nearest point of each box to each plane (signed, > 0 outside): its centre's offset
-        # minus the half-sizes weighted by how far each box axis leans along the normal.
-        normals_in_geom = normals @ data.geom_xmat[ids].reshape(-1, 3, 3)  # (geom, plane, xyz)
-        nearest = offset @ normals.T + (normals_in_geom @ box[:, :3, None])[..., 0]
-        nearest -= (np.abs(normals_in_geom) @ box[:, 3:, None])[..., 0]
-        in_range = np.sqrt(np.einsum("ni,ni->n", offset, offset)) - self.model.geom_rbound[ids]
-        return (in_range <= self._ray_length) & (nearest <= 0.0).all(axis=1)
+        return self._frustum.may_reach(self.model, data, geom_ids, position, rotation)
 
     def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Camera position ``(3,)`` and rotation ``(3, 3)`` (columns = camera axes) in the world.
