@@ -330,6 +330,14 @@ def build_contestants(
             )
         )
     env_ids = list(dict.fromkeys(c.env_id for c in contestants))
+    uses_env = named_baselines or any(c.config is None for c in contestants)  # lone zips
+    if env_id is not None and env_ids and env_id not in env_ids and not uses_env:
+        # It would only add env_id's baselines to the report: surely a mistaken --env.
+        raise ContestantError(
+            f"--env {env_id} is not the environment of the runs given ({', '.join(env_ids)}): "
+            "--env is for lone model files and baseline names, a run folder knows its own; "
+            "drop --env"
+        )
     if env_id is not None and env_id not in env_ids:
         env_ids.append(env_id)
     if not env_ids:

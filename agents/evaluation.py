@@ -18,7 +18,7 @@ import numpy as np
 from agents import run_folder
 from agents.config import ConfigError
 from agents.grasp_baselines import ScriptedGrasp
-from agents.statistics import bootstrap_ci, wilson_interval
+from agents.statistics import bootstrap_ci, interval_text, wilson_interval
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle
 
 #: Evaluation seeds start here, away from the training (``seed``) and periodic-evaluation
@@ -160,8 +160,7 @@ def format_comparison(result: dict) -> str:
         rows.append((f"{result['reference']['name']} (privileged)", result["reference"]))
     lines = [f"{result['env_id']} ({split}), {policy['episodes']} episodes: {result['metric']}"]
     for name, row in rows:
-        low, high = row["ci95"]
-        lines.append(f"  {name:<28} {row['mean']:.3f}  95% CI [{low:.3f}, {high:.3f}]")
+        lines.append(f"  {name:<28} {row['mean']:.3f}  95% CI {interval_text(row['ci95'])}")
     lines.append(f"  {'policy - ' + baseline['name']:<28} {policy['mean'] - baseline['mean']:+.3f}")
     return "\n".join(lines)
 
@@ -235,7 +234,7 @@ def summarize(episodes: list[dict], metric: str) -> dict:
         "episodes": len(episodes),
         "metric": metric,
         "mean": mean,
-        "ci95": list(ci),
+        "ci95": None if ci is None else list(ci),
         "mean_return": float(np.mean([episode["return"] for episode in episodes])),
     }
     for key in episodes[0]:

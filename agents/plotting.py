@@ -100,7 +100,8 @@ def plot_coverage_curves(path: Path, curves: dict) -> Path:
     for index, (label, curve) in enumerate(curves.items()):
         views = np.arange(len(curve))
         mean = np.array([entry["mean"] for entry in curve])
-        low, high = np.array([entry["ci95"] for entry in curve]).T
+        # No band where an interval is undefined (one episode).
+        low, high = np.array([entry["ci95"] or [entry["mean"]] * 2 for entry in curve]).T
         axis.plot(views, mean, marker="o", color=f"C{index}", label=label)
         axis.fill_between(views, low, high, color=f"C{index}", alpha=0.2)
     axis.set(xlabel="views taken (0: start view)", ylabel="surface coverage", ylim=(0, 1))

@@ -24,6 +24,7 @@ from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
 from agents.recorders import COVERAGE_LEVELS, GraspRecorder, ViewPlanningRecorder
 from agents.statistics import (
     bootstrap_ci,
+    interval_text,
     iqm,
     probability_of_improvement,
     probability_of_improvement_ci,
@@ -187,8 +188,12 @@ def _mean_ci(values) -> dict | None:
     values = [v for v in values if v is not None]
     if not values:
         return None
-    low, high = bootstrap_ci(values)
-    return {"mean": float(np.mean(values)), "ci95": [low, high], "n": len(values)}
+    ci = bootstrap_ci(values)
+    return {
+        "mean": float(np.mean(values)),
+        "ci95": None if ci is None else list(ci),
+        "n": len(values),
+    }
 
 
 def _rate(flags) -> dict:
@@ -386,10 +391,7 @@ def _json_default(value):
 def _ci(entry: dict | None, scale: float = 1.0, digits: int = 3) -> str:
     if entry is None:
         return "-"
-    low, high = entry["ci95"]
-    return (
-        f"{entry['mean'] * scale:.{digits}f} [{low * scale:.{digits}f}, {high * scale:.{digits}f}]"
-    )
+    return f"{entry['mean'] * scale:.{digits}f} {interval_text(entry['ci95'], scale, digits)}"
 
 
 def _pct(entry: dict) -> str:
@@ -562,10 +564,9 @@ def summary_lines(report: dict) -> str:
         )
         for result in section["contestants"]:
             summary = result["summary"]
-            low, high = summary["ci95"]
             lines.append(
-                f"  {result['label']:<32} {summary['mean']:.3f}  95% CI [{low:.3f}, {high:.3f}]"
-                f"  ({_kind(result)})"
+                f"  {result['label']:<32} {summary['mean']:.3f}  95% CI "
+                f"{interval_text(summary['ci95'])}  ({_kind(result)})"
             )
     return "\n".join(lines)
 

@@ -17,6 +17,7 @@ dependency ``arch`` 7 fails at import; ``arch`` 8 dropped the argument rliable p
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -30,14 +31,25 @@ def _percentiles(samples: np.ndarray) -> tuple[float, float]:
     return float(low), float(high)
 
 
-def bootstrap_ci(values, seed: int = 0) -> tuple[float, float]:
-    """95% percentile-bootstrap confidence interval of the mean."""
+def bootstrap_ci(values, seed: int = 0) -> tuple[float, float] | None:
+    """95% percentile-bootstrap confidence interval of the mean; None for a single value,
+    whose every resample is that value (a zero-width interval would claim certainty)."""
     values = np.asarray(values, dtype=float)
     if values.size == 0:
         raise ValueError("bootstrap_ci needs at least one value")
+    if values.size == 1:
+        return None
     rng = np.random.default_rng(seed)
     means = rng.choice(values, size=(BOOTSTRAP_RESAMPLES, len(values))).mean(axis=1)
     return _percentiles(means)
+
+
+def interval_text(ci: Sequence[float] | None, scale: float = 1.0, digits: int = 3) -> str:
+    """``[low, high]`` for reports; a note where :func:`bootstrap_ci` gave none."""
+    if ci is None:
+        return "[no interval from one value]"
+    low, high = ci
+    return f"[{low * scale:.{digits}f}, {high * scale:.{digits}f}]"
 
 
 def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:

@@ -15,7 +15,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from agents.statistics import bootstrap_ci  # noqa: E402
+from agents.statistics import bootstrap_ci, interval_text  # noqa: E402
 from agents.view_baselines import BASELINES  # noqa: E402
 from liuxing_envs.envs.view_planning import OBJECT_SET_NAMES, ViewPlanningEnv  # noqa: E402
 
@@ -59,9 +59,8 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- |")
     for name in BASELINES:
         result = run(name, args.episodes, args.object_set, args.budget)
-        low, high = result["ci"]
         print(
-            f"| {name} | {result['mean']:.3f} | [{low:.3f}, {high:.3f}] | "
+            f"| {name} | {result['mean']:.3f} | {interval_text(result['ci'])} | "
             f"{result['refused']:.2f} | {result['seconds']:.0f} |",
             flush=True,
         )

@@ -14,6 +14,8 @@ import pytest
 
 from agents import run_folder
 from agents.statistics import (
+    bootstrap_ci,
+    interval_text,
     iqm,
     probability_of_improvement,
     stratified_bootstrap_ci,
@@ -61,6 +63,15 @@ def test_wilson_interval_holds_the_rate_exactly_at_zero_and_one(trials):
     assert wilson_interval(0, trials)[0] == 0.0
     low, high = wilson_interval(trials // 2, trials)
     assert 0.0 < low < 0.5 < high < 1.0
+
+
+def test_one_value_has_no_bootstrap_interval_and_reports_say_so():
+    # Every resample of one value is that value: a zero-width interval would claim certainty.
+    assert bootstrap_ci([0.7]) is None
+    low, high = bootstrap_ci([0.6, 0.8, 0.7])
+    assert 0.6 - 1e-9 <= low < 0.7 < high <= 0.8 + 1e-9
+    assert interval_text(None) == "[no interval from one value]"
+    assert interval_text((0.01, 0.02), scale=1000, digits=1) == "[10.0, 20.0]"
 
 
 def test_iqm_is_the_mean_of_the_middle_half():
@@ -256,6 +267,10 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "render_mode is evaluate.py's to set",
         ),
         (["policies/ViewPlanning-v0/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
+        (
+            ["policies/ViewPlanning-v0/ppo", "--env", "InstrumentGrasp-v0"],
+            "--env InstrumentGrasp-v0 is not the environment of the runs given (ViewPlanning-v0)",
+        ),
     ],
 )
 def test_bad_input_exits_with_a_message_naming_the_problem(args, message):
