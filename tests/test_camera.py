@@ -524,6 +524,84 @@ def test_raycast_table_shortcut_with_the_arm_in_the_scene(objects_model):
         assert answered_with_arm >= 10  # also with arm links in view
 
 
+def _tabletop_with_a_housed_camera(far_obstacles: int) -> mujoco.MjModel:
+    """The table and floor, a camera on a mocap rig with a box housing whose front face
+    passes through the optical centre, and movable spheres far from the table."""
+    spec = load_scene_spec()
+    spec.delete(spec.body(ARM_BASE_BODY))
+    for key in list(spec.keys):
+        spec.delete(key)
+    rig = spec.worldbody.add_body(name="rig", mocap=True)
+    rig.add_camera(name="probe")
+    half = [0.045, 0.0125, 0.0125]
+    rig.add_geom(name="housing", type=mujoco.mjtGeom.mjGEOM_BOX, size=half, pos=[0, 0, half[2]])
+    for i in range(far_obstacles):
+        far = spec.worldbody.add_body(mocap=True, pos=[5.0 + i, 5.0, 0.5])
+        far.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.02, 0, 0])
+    return spec.compile()
+
+
+def test_a_geom_touching_the_optical_centre_is_never_culled():
+    # Rounding puts a housing face through the optical centre either side of the image
+    # plane; mj_multiRay then reports every forward ray hitting it at distance 0. With more
+    # obstacles than the shortcut takes, the field-of-view test must keep the housing, or
+    # the shortcut answers those rays as table.
+    model = _tabletop_with_a_housed_camera(far_obstacles=8)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    housing = [model.geom("housing").id]
+    with DepthCamera(model, "probe", backend="raycast") as camera:
+        frustum = camera._require_open()._frustum
+        for _ in range(100):
+            eye = rng.uniform([0.0, -0.5, 0.3], [0.8, 0.5, 1.0])
+            target = rng.uniform([0.0, -0.4, 0.0], [0.8, 0.4, 0.05])
+            data.mocap_pos[0], data.mocap_quat[0] = eye, _look_at_quat(eye, target)
+            mujoco.mj_kinematics(model, data)
+            position, rotation = camera.pose(data)
+            assert frustum.may_reach(model, data, housing, position, rotation)[0]
+            np.testing.assert_array_equal(
+                camera.render(data), _image_casting_every_ray(camera, model, data)
+            )
+
+
+def test_raycast_shortcut_follows_static_geoms_moved_at_run_time():
+    # The shortcut decides once which static geoms rise above the table; a model edited
+    # afterwards (here a box raised through the table top) must not keep a stale decision.
+    spec = load_scene_spec()
+    spec.delete(spec.body(ARM_BASE_BODY))
+    for key in list(spec.keys):
+        spec.delete(key)
+    spec.worldbody.add_geom(name="block", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.04] * 3)
+    spec.geom("block").pos = [0.4, 0.0, -0.1]  # inside the table, below its top
+    rig = spec.worldbody.add_body(name="rig", mocap=True, pos=[0.4, 0.0, 0.6])
+    rig.add_camera(name="probe")
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    with DepthCamera(model, "probe", backend="raycast") as camera:
+        flat = camera.render(data)
+        model.geom("block").pos[2] = 0.04  # now standing on the table top
+        mujoco.mj_kinematics(model, data)
+        raised = camera.render(data)
+        np.testing.assert_array_equal(raised, _image_casting_every_ray(camera, model, data))
+    assert (raised < flat - 0.05).sum() > 50  # the block shows, 8 cm nearer than the table
+
+
+def test_raycast_renders_a_model_without_materials():
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.5, 0.5, 0.02])
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0], pos=[0, 0, 0.07])
+    spec.worldbody.add_camera(name="probe", pos=[0, 0, 0.6])
+    model = spec.compile()
+    assert model.nmat == 0
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    with DepthCamera(model, "probe", backend="raycast") as camera:
+        depth = camera.render(data)
+    assert depth[32, 32] == pytest.approx(0.6 - 0.12, abs=1e-3)  # near the sphere's top
+    assert depth[0, 0] == pytest.approx(0.6 - 0.02, abs=1e-5)  # the box's top
+
+
 def _tabletop_with_a_mesh(share_body: bool) -> mujoco.MjModel:
     """The table and floor, an octahedron mesh on a mocap body (with a sphere beside it on
     the same body when ``share_body``), a box on another mocap body, and a free camera."""

@@ -99,6 +99,9 @@ _SHORTCUT_MAX_SCENE_OBSTACLES = 20
 # bounding sphere or to the table's edge are cast rather than solved in numpy.
 _SHORTCUT_SPHERE_MARGIN = 1e-6
 _SHORTCUT_EDGE_MARGIN = 1e-9
+# A geom this close to the field of view counts as in it: one touching the optical centre
+# (a housing face through it) lands a rounding error either side of the image plane.
+_VIEW_MARGIN = 1e-6
 
 
 # --- intrinsics ------------------------------------------------------------------------------
@@ -408,7 +411,7 @@ class _ViewFrustum:
         nearest = offset @ normals.T + (normals_in_geom @ box[:, :3, None])[..., 0]
         nearest -= (np.abs(normals_in_geom) @ box[:, 3:, None])[..., 0]
         in_range = np.sqrt(np.einsum("ni,ni->n", offset, offset)) - model.geom_rbound[ids]
-        return (in_range <= self.ray_length) & (nearest <= 0.0).all(axis=1)
+        return (in_range <= self.ray_length) & (nearest <= _VIEW_MARGIN).all(axis=1)
 
 
 class _Backend(Protocol):
@@ -518,19 +521,29 @@ def _ray_visible(model: mujoco.MjModel, geomgroup: np.ndarray) -> np.ndarray:
     """Per geom: whether ``mj_multiRay`` with this group mask can hit it (a geom in one of
     the groups and not fully transparent)."""
     matid = model.geom_matid
-    material_alpha = model.mat_rgba[np.maximum(matid, 0), 3]
-    alpha = np.where(matid >= 0, material_alpha, model.geom_rgba[:, 3])
+    alpha = model.geom_rgba[:, 3]
+    if model.nmat:
+        alpha = np.where(matid >= 0, model.mat_rgba[np.maximum(matid, 0), 3], alpha)
     group = np.clip(model.geom_group, 0, mujoco.mjNGROUP - 1)
     return (geomgroup[group] != 0) & (alpha != 0)
 
 
-def _ray_visibility_inputs(model: mujoco.MjModel) -> tuple[bytes, ...]:
-    """What :func:`_ray_visible` reads of a model (a few µs; it takes about 20)."""
-    return (
-        model.geom_group.tobytes(),
-        model.geom_rgba[:, 3].tobytes(),
-        model.geom_matid.tobytes(),
-        model.mat_rgba[:, 3].tobytes(),
+def _shortcut_inputs(model: mujoco.MjModel) -> tuple[bytes, ...]:
+    """What a :class:`_TableShortcut` is made from, to tell when to make it again (a few
+    µs): what :func:`_ray_visible` reads, and where and how large the geoms are."""
+    return tuple(
+        array.tobytes()
+        for array in (
+            model.geom_group,
+            model.geom_rgba[:, 3],
+            model.geom_matid,
+            model.mat_rgba[:, 3],
+            model.geom_size,
+            model.geom_pos,
+            model.geom_quat,
+            model.body_pos,
+            model.body_quat,
+        )
     )
 
 
@@ -696,7 +709,7 @@ class _RaycastBackend:
         self._frustum = _ViewFrustum(intrinsics)
         self._cutoff = self._frustum.ray_length
         # Per scene model (MjModel hashes by identity): its _TableShortcut (or None) and the
-        # _ray_visibility_inputs it was made with.
+        # _shortcut_inputs it was made with.
         self._shortcuts: dict[mujoco.MjModel, tuple[tuple, _TableShortcut | None]] = {}
 
     def render(
@@ -755,9 +768,9 @@ class _RaycastBackend:
         )
 
     def _shortcut(self, model: mujoco.MjModel, data: mujoco.MjData) -> _TableShortcut | None:
-        """The scene's table shortcut, made again whenever the geoms rays can see change: a
-        model may show and park geoms by group (ObjectStage does)."""
-        inputs = _ray_visibility_inputs(model)
+        """The scene's table shortcut, made again whenever what it is made from changes: a
+        model may show and park geoms by group (ObjectStage does), or move static geoms."""
+        inputs = _shortcut_inputs(model)
         made = self._shortcuts.get(model)
         if made is None or made[0] != inputs:
             seen = _ray_visible(model, self._geomgroup)
