@@ -708,9 +708,9 @@ class _RaycastBackend:
         self._dist = np.empty(self._nray, dtype=np.float64)
         self._frustum = _ViewFrustum(intrinsics)
         self._cutoff = self._frustum.ray_length
-        # Per scene model (MjModel hashes by identity): its _TableShortcut (or None) and the
-        # _shortcut_inputs it was made with.
-        self._shortcuts: dict[mujoco.MjModel, tuple[tuple, _TableShortcut | None]] = {}
+        # Per scene model (MjModel hashes by identity): the _shortcut_inputs it was last seen
+        # with, the geoms rays can hit (_ray_visible) and its _TableShortcut (or None).
+        self._scenes: dict[mujoco.MjModel, tuple[tuple, np.ndarray, _TableShortcut | None]] = {}
 
     def render(
         self, data: mujoco.MjData, scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None
@@ -767,15 +767,20 @@ class _RaycastBackend:
             self._cutoff,
         )
 
-    def _shortcut(self, model: mujoco.MjModel, data: mujoco.MjData) -> _TableShortcut | None:
-        """The scene's table shortcut, made again whenever what it is made from changes: a
-        model may show and park geoms by group (ObjectStage does), or move static geoms."""
+    def _scene(self, model: mujoco.MjModel, data: mujoco.MjData):
+        """``(inputs, seen, shortcut)`` of a scene model, made again whenever what they are
+        made from changes: a model may show and park geoms by group (ObjectStage does), or
+        move static geoms."""
         inputs = _shortcut_inputs(model)
-        made = self._shortcuts.get(model)
+        made = self._scenes.get(model)
         if made is None or made[0] != inputs:
             seen = _ray_visible(model, self._geomgroup)
-            made = self._shortcuts[model] = (inputs, _TableShortcut.for_scene(model, data, seen))
-        return made[1]
+            made = self._scenes[model] = (inputs, seen, _TableShortcut.for_scene(model, data, seen))
+        return made
+
+    def _shortcut(self, model: mujoco.MjModel, data: mujoco.MjData) -> _TableShortcut | None:
+        """The scene's table shortcut (see :meth:`_scene`)."""
+        return self._scene(model, data)[2]
 
     def close(self) -> None:
         pass
@@ -807,10 +812,8 @@ class _EmbreeBackend(_RaycastBackend):
         self._embree_rays = np.empty((self._nray, 6), dtype=np.float32)
 
     def _cast(self, model: mujoco.MjModel, data: mujoco.MjData, position, rays, dist) -> None:
-        # Seen meshes are recomputed per image: a model may show and park geoms by group.
-        meshes = np.flatnonzero(
-            (model.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & _ray_visible(model, self._geomgroup)
-        )
+        seen = self._scene(model, data)[1]  # kept up to date: geoms may be parked by group
+        meshes = np.flatnonzero((model.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & seen)
         bodies = np.unique(model.geom_bodyid[meshes])
         split = bodies.size == 1 and model.body_geomnum[bodies[0]] == meshes.size
         super()._cast(model, data, position, rays, dist, int(bodies[0]) if split else -1)
