@@ -431,11 +431,12 @@ def _tabletop_with_a_free_camera(floor_tilt_deg: float = 0.0) -> mujoco.MjModel:
 
 def _image_casting_every_ray(camera: DepthCamera, model, data) -> np.ndarray:
     backend = camera._require_open()
-    backend._shortcut = lambda model, data: None
+    scene = backend._scene
+    backend._scene = lambda model, data: scene(model, data)._replace(shortcut=None)
     try:
         return camera.render(data)
     finally:
-        del backend._shortcut
+        del backend._scene
 
 
 def test_raycast_table_shortcut_gives_the_full_cast_image():
@@ -449,7 +450,7 @@ def test_raycast_table_shortcut_gives_the_full_cast_image():
     rng = np.random.default_rng(0)
     with DepthCamera(model, "probe", backend="raycast") as camera:
         backend = camera._require_open()
-        shortcut = backend._shortcut(model, data)
+        shortcut = backend._scene(model, data).shortcut
         assert shortcut is not None
         assert shortcut.obstacles.size == 3  # the static box and the two movable geoms
         answered = 0
@@ -474,7 +475,7 @@ def test_raycast_table_shortcut_stays_off_where_it_would_not_be_exact():
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     with DepthCamera(model, "probe", backend="raycast") as camera:
-        assert camera._require_open()._shortcut(model, data) is None
+        assert camera._require_open()._scene(model, data).shortcut is None
         np.testing.assert_array_equal(
             camera.render(data), _image_casting_every_ray(camera, model, data)
         )
@@ -494,7 +495,7 @@ def test_raycast_table_shortcut_with_the_arm_in_the_scene(objects_model):
         DepthCamera(model, "side_view", backend="raycast") as side,
     ):
         backend = wrist._require_open()
-        shortcut = backend._shortcut(model, data)
+        shortcut = backend._scene(model, data).shortcut
         assert shortcut is not None and shortcut.obstacles.size > 10
         housing = model.geom("camera_housing_geom").id
         assert housing in shortcut.obstacles

@@ -23,7 +23,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import mujoco
 import numpy as np
@@ -683,6 +683,14 @@ class _TableShortcut:
         return ~misses.all(axis=1)
 
 
+class _SceneCache(NamedTuple):
+    """A ray-cast backend's record of one scene model."""
+
+    inputs: tuple  #: its _shortcut_inputs when this was made
+    seen: np.ndarray  #: per geom, whether rays can hit it (_ray_visible)
+    shortcut: _TableShortcut | None
+
+
 class _RaycastBackend:
     """One :func:`mujoco.mj_multiRay` ray per pixel centre."""
 
@@ -708,9 +716,8 @@ class _RaycastBackend:
         self._dist = np.empty(self._nray, dtype=np.float64)
         self._frustum = _ViewFrustum(intrinsics)
         self._cutoff = self._frustum.ray_length
-        # Per scene model (MjModel hashes by identity): the _shortcut_inputs it was last seen
-        # with, the geoms rays can hit (_ray_visible) and its _TableShortcut (or None).
-        self._scenes: dict[mujoco.MjModel, tuple[tuple, np.ndarray, _TableShortcut | None]] = {}
+        # Per scene model (MjModel hashes by identity).
+        self._scenes: dict[mujoco.MjModel, _SceneCache] = {}
 
     def render(
         self, data: mujoco.MjData, scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None
@@ -719,7 +726,8 @@ class _RaycastBackend:
         rotation = data.cam_xmat[self._camera_id].reshape(3, 3)
         rays = self._rays_cam @ rotation.T
         model, data = (self._model, data) if scene is None else scene
-        shortcut = self._shortcut(model, data)
+        cached = self._scene(model, data)
+        shortcut = cached.shortcut
         solved = None
         if shortcut is not None:
             in_view = None
@@ -730,12 +738,12 @@ class _RaycastBackend:
             solved = shortcut.solve(data, position, rays, self._cutoff, in_view)
         if solved is None:
             dist = self._dist
-            self._cast(model, data, position, rays, dist)
+            self._cast(model, data, position, rays, dist, cached.seen)
         else:
             dist, to_cast = solved
             if to_cast.size:
                 cast = self._dist[: to_cast.size]
-                self._cast(model, data, position, rays[to_cast], cast)
+                self._cast(model, data, position, rays[to_cast], cast, cached.seen)
                 dist[to_cast] = cast
         depth = np.where(dist >= 0.0, dist * self._cos_axis, 0.0)
         return depth.astype(np.float32).reshape(self._shape)
@@ -747,10 +755,12 @@ class _RaycastBackend:
         position: np.ndarray,
         rays: np.ndarray,
         dist: np.ndarray,
+        seen: np.ndarray,
         exclude_body: int = -1,
     ) -> None:
-        """Cast ``rays`` from ``position`` into ``dist`` (-1 where nothing is hit). No body is
-        excluded by default: the camera housing is behind the optical centre."""
+        """Cast ``rays`` from ``position`` into ``dist`` (-1 where nothing is hit); ``seen``
+        (the geoms rays can hit) is for subclasses that cast some geoms themselves. No body
+        is excluded by default: the camera housing is behind the optical centre."""
         count = rays.shape[0]
         mujoco.mj_multiRay(
             model,
@@ -767,20 +777,17 @@ class _RaycastBackend:
             self._cutoff,
         )
 
-    def _scene(self, model: mujoco.MjModel, data: mujoco.MjData):
-        """``(inputs, seen, shortcut)`` of a scene model, made again whenever what they are
-        made from changes: a model may show and park geoms by group (ObjectStage does), or
-        move static geoms."""
+    def _scene(self, model: mujoco.MjModel, data: mujoco.MjData) -> _SceneCache:
+        """What the backend keeps of a scene model, made again whenever what it is made from
+        changes: a model may show and park geoms by group (ObjectStage does), or move static
+        geoms."""
         inputs = _shortcut_inputs(model)
-        made = self._scenes.get(model)
-        if made is None or made[0] != inputs:
+        cached = self._scenes.get(model)
+        if cached is None or cached.inputs != inputs:
             seen = _ray_visible(model, self._geomgroup)
-            made = self._scenes[model] = (inputs, seen, _TableShortcut.for_scene(model, data, seen))
-        return made
-
-    def _shortcut(self, model: mujoco.MjModel, data: mujoco.MjData) -> _TableShortcut | None:
-        """The scene's table shortcut (see :meth:`_scene`)."""
-        return self._scene(model, data)[2]
+            shortcut = _TableShortcut.for_scene(model, data, seen)
+            cached = self._scenes[model] = _SceneCache(inputs, seen, shortcut)
+        return cached
 
     def close(self) -> None:
         pass
@@ -811,12 +818,11 @@ class _EmbreeBackend(_RaycastBackend):
         self._meshes: dict[tuple[mujoco.MjModel, int], object] = {}
         self._embree_rays = np.empty((self._nray, 6), dtype=np.float32)
 
-    def _cast(self, model: mujoco.MjModel, data: mujoco.MjData, position, rays, dist) -> None:
-        seen = self._scene(model, data)[1]  # kept up to date: geoms may be parked by group
+    def _cast(self, model: mujoco.MjModel, data: mujoco.MjData, position, rays, dist, seen) -> None:
         meshes = np.flatnonzero((model.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & seen)
         bodies = np.unique(model.geom_bodyid[meshes])
         split = bodies.size == 1 and model.body_geomnum[bodies[0]] == meshes.size
-        super()._cast(model, data, position, rays, dist, int(bodies[0]) if split else -1)
+        super()._cast(model, data, position, rays, dist, seen, int(bodies[0]) if split else -1)
         if not split:
             return
         count = rays.shape[0]
