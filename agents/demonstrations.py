@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-from stable_baselines3.common.logger import configure
+from stable_baselines3.common.logger import Logger
 
 from agents.config import ConfigError, int_at_least, number_in, require_known
 from agents.evaluation import make_env
@@ -177,7 +177,7 @@ def pretrain(model, transitions: list[Transition], steps: int, seed: int) -> Non
     intended = torch.as_tensor(np.array([t.intended for t in transitions]), device=model.device)
     rng = np.random.default_rng(seed)
     # SAC.train logs through the logger learn() sets up; until then a silent one.
-    model.set_logger(configure(folder=None, format_strings=[]))
+    model.set_logger(Logger(folder=None, output_formats=[]))
     for _ in range(steps):
         model.train(gradient_steps=1, batch_size=model.batch_size)
         batch = torch.as_tensor(rng.integers(len(intended), size=PRETRAIN_BATCH_SIZE))

@@ -26,6 +26,7 @@ from gymnasium.envs.registration import load_env_creator
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.preprocessing import is_image_space
@@ -774,6 +775,9 @@ def _learn(
         callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"], level))
     if evaluation is not None:
         callbacks.append(evaluation)
+    if not config["tensorboard"]:
+        # SB3's own silent logger would still make an empty tempdir/SB3-<time> folder per run.
+        model.set_logger(Logger(folder=None, output_formats=[]))
     started = time.perf_counter()
     try:
         with interrupts.deferred():

@@ -10,16 +10,19 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 
 
-def run_script(script: str, *args: str, check: bool = True, timeout: float = 900):
-    """``python <script> <args>`` in the repository root; with ``check``, a non-zero exit
-    fails the test with the script's stderr."""
+def run_script(
+    script: str, *args: str, check: bool = True, timeout: float = 900, env: dict | None = None
+):
+    """``python <script> <args>`` in the repository root, with ``env`` added to the
+    environment variables; with ``check``, a non-zero exit fails the test with the script's
+    stderr."""
     result = subprocess.run(
         [sys.executable, script, *args],
         cwd=REPO,
         capture_output=True,
         text=True,
         timeout=timeout,
-        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")},
+        env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"), **(env or {})},
     )
     if check and result.returncode != 0:
         raise AssertionError(f"{script} failed ({result.returncode}):\n{result.stderr[-3000:]}")

@@ -37,8 +37,13 @@ QUICK_HYPERPARAMS = {
 }
 
 
-def run_train(*args: str, timeout: float = 600, check: bool = True):
-    return run_script("train.py", *args, timeout=timeout, check=check)
+def run_train(*args: str, timeout: float = 600, check: bool = True, env: dict | None = None):
+    return run_script("train.py", *args, timeout=timeout, check=check, env=env)
+
+
+def sb3_temporary_folders(temp_dir: Path) -> list[Path]:
+    """What SB3's logger leaves in the temporary folder when it is not given one."""
+    return sorted(temp_dir.glob("SB3-*"))
 
 
 def quick_args(env_id: str, algo: str, run_dir: Path, steps: int, n_envs: int = 2) -> list[str]:
@@ -250,8 +255,11 @@ def test_the_periodic_evaluation_can_choose_the_best_model_on_other_objects(tmp_
 def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
     run_dir = tmp_path / "run"
     steps = 256 if env_id == "ViewPlanning-v0" else 512
-    result = run_train(*quick_args(env_id, algo, run_dir, steps))
+    temp_dir = tmp_path / "tmp"
+    temp_dir.mkdir()
+    result = run_train(*quick_args(env_id, algo, run_dir, steps), env={"TMPDIR": str(temp_dir)})
     assert "trained policy" in result.stdout
+    assert sb3_temporary_folders(temp_dir) == []  # a run writes into its own folder only
 
     config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
     assert (config["env_id"], config["algo"], config["seed"]) == (env_id, algo, 0)
@@ -290,7 +298,11 @@ def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_pa
     args = quick_args("InstrumentGrasp-v0", "sac", run_dir, 128, n_envs=1)
     # At the env's own step sizes, where the scripted grasp finishes well inside the time
     # limit (at the YAML's 1 cm per step it often runs out of time).
-    run_train(*args, demonstrations, "--env-kwargs", "max_translation=0.02", "max_yaw=0.2")
+    temp_dir = tmp_path / "tmp"
+    temp_dir.mkdir()
+    extra = ("--env-kwargs", "max_translation=0.02", "max_yaw=0.2")
+    run_train(*args, demonstrations, *extra, env={"TMPDIR": str(temp_dir)})
+    assert sb3_temporary_folders(temp_dir) == []  # the cloning steps' logger included
     added = json.loads((run_dir / run_folder.DEMONSTRATIONS).read_text())
     assert added == {
         "expert": "privileged-grasp",
