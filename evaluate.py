@@ -60,8 +60,14 @@ def build_parser() -> argparse.ArgumentParser:
     episodes.add_argument(
         "--seed", type=int, default=1_000_000, help="seed of the first episode (default: 1000000)"
     )
-    episodes.add_argument("--object-set", choices=OBJECT_SPLITS, default="held_out")
-    episodes.add_argument("--instrument-set", choices=INSTRUMENT_SPLITS, default="held_out")
+    episodes.add_argument(
+        "--object-set", choices=OBJECT_SPLITS, help="ViewPlanning-v0's split (default: held_out)"
+    )
+    episodes.add_argument(
+        "--instrument-set",
+        choices=INSTRUMENT_SPLITS,
+        help="InstrumentGrasp-v0's split (default: held_out)",
+    )
     episodes.add_argument("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="gym.make kwargs")
     episodes.add_argument(
         "--deterministic",
@@ -120,8 +126,12 @@ def main(argv: list[str] | None = None) -> int:
             baselines=baselines,
             env_kwargs=parse_assignments(args.env_kwargs, "--env-kwargs"),
             splits={
-                "ViewPlanning-v0": args.object_set,
-                "InstrumentGrasp-v0": args.instrument_set,
+                env: split
+                for env, split in (
+                    ("ViewPlanning-v0", args.object_set),
+                    ("InstrumentGrasp-v0", args.instrument_set),
+                )
+                if split is not None
             },
             best=not args.final_model,
             raw_observations=args.raw_observations,

@@ -139,6 +139,19 @@ def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
 
 #: Algorithm kwargs that default to None (off) and otherwise take a number.
 OPTIONAL_NUMBERS = ("target_kl", "clip_range_vf")
+#: Bounds of the algorithm numbers whose meaning has them: SB3 takes ``gamma=2`` and trains.
+HYPERPARAM_RANGES = {
+    "gamma": (0.0, 1.0),
+    "gae_lambda": (0.0, 1.0),
+    "tau": (0.0, 1.0),
+    "learning_rate": (0.0, np.inf),
+    "clip_range": (0.0, np.inf),
+    "clip_range_vf": (0.0, np.inf),
+    "ent_coef": (0.0, np.inf),
+    "vf_coef": (0.0, np.inf),
+    "max_grad_norm": (0.0, np.inf),
+    "target_kl": (0.0, np.inf),
+}
 #: Algorithm kwargs that train.py sets from its own flags.
 SET_BY_FLAGS = {"seed": "--seed", "device": "--device", "tensorboard_log": "--tensorboard"}
 
@@ -167,6 +180,11 @@ def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
         )
         if isinstance(value, bool) or not isinstance(value, wanted) or not np.isfinite(value):
             raise ConfigError(f"{algo_name} hyper-parameter {key} must be {kind}, got {value!r}")
+        low, high = HYPERPARAM_RANGES.get(key, (-np.inf, np.inf))
+        if not low <= value <= high:
+            raise ConfigError(
+                f"{algo_name} hyper-parameter {key} must be in [{low}, {high}], got {value!r}"
+            )
 
 
 def deep_update(base: Mapping, overrides: Mapping) -> dict:

@@ -314,7 +314,8 @@ def build_contestants(
     explicit list of objects or instruments), updated with ``env_kwargs``; the baselines of
     an environment run in its first policy's (so the same view budget, say), plus what they
     read. Every contestant is put on ``splits[env_id]`` (default ``held_out``) unless
-    ``env_kwargs`` names objects or instruments explicitly."""
+    ``env_kwargs`` names objects or instruments explicitly; a split for an environment that
+    no contestant runs in is refused, as is a list of contestants left empty."""
     env_kwargs = dict(env_kwargs or {})
     splits = dict(splits or {})
     contestants: list[Contestant] = []
@@ -377,6 +378,18 @@ def build_contestants(
             wanted += [b for b in baselines if b not in wanted]
         for name in wanted:
             contestants.append(baseline_contestant(name, current, scene))
+    if not contestants:
+        raise ContestantError(
+            f"nothing to evaluate on {', '.join(env_ids)}: --baselines none leaves no "
+            "contestant; give a run folder, a model file or baseline names"
+        )
+    for split_env in splits:
+        if split_env not in env_ids:
+            flag = "--" + task_for(split_env).split_kwarg.replace("_", "-")
+            raise ContestantError(
+                f"{flag} chooses {split_env}'s episodes, but nothing here runs in "
+                f"{split_env} (evaluating {', '.join(env_ids)}); drop {flag}"
+            )
     for contestant in contestants:
         task = task_for(contestant.env_id)
         if task.explicit_scene_kwarg not in contestant.env_kwargs:

@@ -587,7 +587,8 @@ def _checked_model(config: dict, venv, run_dir: Path):
             verbose=0,
             **algorithm_kwargs(config["hyperparams"]),
         )
-    except (TypeError, ValueError, AssertionError) as error:
+    except (TypeError, ValueError, AssertionError, RuntimeError) as error:
+        # RuntimeError: torch refusing a layer, such as net_arch [-1]'s negative width.
         raise ConfigError(
             f"{config['algo'].upper()} refused its hyper-parameters {config['hyperparams']}: "
             f"{error}"

@@ -267,6 +267,11 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "render_mode is evaluate.py's to set",
         ),
         (["policies/ViewPlanning-v0/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
+        (["--env", "ViewPlanning-v0", "--baselines", "none"], "leaves no contestant"),
+        (
+            ["--env", "InstrumentGrasp-v0", "squeeze", "--object-set", "train"],
+            "--object-set chooses ViewPlanning-v0's episodes, but nothing here runs in",
+        ),
         (
             ["policies/ViewPlanning-v0/ppo", "--env", "InstrumentGrasp-v0"],
             "--env InstrumentGrasp-v0 is not the environment of the runs given (ViewPlanning-v0)",

@@ -106,6 +106,8 @@ def test_a_python_expression_stays_a_string():
             "did you mean 'object_set'",
         ),
         (["--hyperparams", "target_kl=abc"], "target_kl must be a number, got 'abc'"),
+        (["--hyperparams", "gamma=2"], "PPO hyper-parameter gamma must be in [0.0, 1.0], got 2"),
+        (["--hyperparams", "clip_range=-0.2"], "clip_range must be in [0.0, inf], got -0.2"),
         (["--hyperparams", "env_kwargs=5"], "env_kwargs must be a mapping of env kwargs"),
         (["--hyperparams", "normalize=maybe"], "normalize must be true or false, got 'maybe'"),
         (["--hyperparams", "seed=3"], "seed is not a hyper-parameter here: set it with --seed"),
@@ -168,6 +170,7 @@ def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
     [
         ("batch_size=0", "`batch_size` must be greater than 1"),
         ("policy_kwargs.net_arch=abc", "must be tuple of ints"),
+        ("policy_kwargs.net_arch=[-1]", "negative dimension -1"),
     ],
 )
 def test_a_hyperparameter_sb3_refuses_leaves_no_run_folder(hyperparam, reason, tmp_path, capsys):

@@ -312,6 +312,29 @@ def test_a_reset_position_outside_the_workspace_is_refused(env):
     assert info["object"] == "box"
 
 
+def test_reset_options_are_checked_whatever_the_draw_and_a_refusal_changes_nothing():
+    env = ViewPlanningEnv(objects=["box", "mug"], scales=(0.9, 1.1), coverage_samples=2048)
+    # numpy compares float32 with float in float32: the option must become the scale itself.
+    _, info = env.reset(seed=0, options={"object": "box", "scale": np.float32(0.9)})
+    assert info["scale"] == 0.9
+    # x = 0.23 m leaves the mug at either scale and the box at 0.9 inside the crop, not the
+    # box at 1.1: refused at every seed unless the options rule that one out.
+    for seed in range(4):
+        with pytest.raises(ValueError, match="puts box at scale 1.1 partly outside"):
+            env.reset(seed=seed, options={"position": (0.23, 0.0)})
+    _, info = env.reset(seed=0, options={"object": "mug", "position": (0.23, 0.0)})
+    assert info["object"] == "mug"
+
+    env.reset(seed=3)
+    expected, _ = env.reset()  # the episode the generator seeded with 3 draws next
+    env.reset(seed=3)
+    with pytest.raises(ValueError, match="partly outside"):
+        env.reset(seed=7, options={"object": "box", "scale": 1.1, "position": (0.23, 0.0)})
+    drawn, _ = env.reset()
+    np.testing.assert_array_equal(drawn["depth"], expected["depth"])  # same pose
+    env.close()
+
+
 def test_reconstruct_names_a_bad_tau_fraction(env):
     env.reset(seed=0)
     with pytest.raises(ValueError, match=r"tau_fraction must be a number in \[0.0001, 1.0\]"):

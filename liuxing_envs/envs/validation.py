@@ -76,10 +76,15 @@ def checked_reset_options(options, checks: Mapping[str, Callable]) -> dict:
 
 
 def option_in(allowed) -> Callable:
+    """A check that returns the allowed choice equal to the value: numpy compares a float32
+    with a Python float in float32, so ``np.float32(0.9)`` matches 0.9 and becomes 0.9."""
+
     def check(key, value):
-        if isinstance(value, np.ndarray) or value not in allowed:
-            raise ValueError(f"reset option {key}={value!r} is not one of {tuple(allowed)}")
-        return value
+        if not isinstance(value, np.ndarray):
+            for choice in allowed:
+                if value == choice:
+                    return choice
+        raise ValueError(f"reset option {key}={value!r} is not one of {tuple(allowed)}")
 
     return check
 

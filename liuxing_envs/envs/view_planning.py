@@ -124,7 +124,10 @@ class ViewPlanningEnv(gym.Env):
     (success) only if ``terminate_on_success`` and coverage reaches ``success_coverage``.
     ``reset(options=...)`` may fix any of ``object`` (one of :attr:`object_names`), ``scale``
     (one of ``scales``), ``position`` ((x, y) in m; the whole object must stay inside the
-    workspace crop, as ``object_region`` must for every object) and ``yaw`` (rad).
+    workspace crop, as ``object_region`` must for every object: without ``object`` and
+    ``scale``, every one the reset may draw, so a refusal does not depend on the seed) and
+    ``yaw`` (rad). A refused reset changes nothing: the seed and the episode stay as they
+    were.
 
     **Action.** ``action_mode="continuous"``: ``Box(-1, 1, (3,))`` mapped linearly to
 
@@ -438,6 +441,8 @@ class ViewPlanningEnv(gym.Env):
                 "yaw": option_angle,
             },
         )
+        if "position" in options:  # refused before the seed and the episode change
+            self._check_position(options["position"], options.get("object"), options.get("scale"))
         super().reset(seed=seed)
         self._reset_seed = seed
         rng = self.np_random
@@ -447,14 +452,6 @@ class ViewPlanningEnv(gym.Env):
             "position", rng.uniform(self.object_region[0], self.object_region[1])
         )
         yaw = float(options.get("yaw", rng.uniform(0.0, 2 * np.pi)))
-        low, high = self._placeable(self._footprints[(name, scale)])
-        if not ((position_xy >= low).all() and (position_xy <= high).all()):
-            raise ValueError(
-                f"reset option position {np.round(position_xy, 4).tolist()} puts {name} at "
-                f"scale {scale} "
-                f"partly outside the workspace: x must lie in [{low[0]:.3f}, {high[0]:.3f}] "
-                f"and y in [{low[1]:.3f}, {high[1]:.3f}] m"
-            )
 
         reset_to_home(self.model, self.data)
         self.placed = self._stage.place(
@@ -644,6 +641,22 @@ class ViewPlanningEnv(gym.Env):
         return {"reachable": True, "gain": gain, "path_length": plan.length, "reward": reward}
 
     # ------------------------------------------------------------------ internals
+    def _check_position(self, position_xy: np.ndarray, name: str | None, scale: float | None):
+        """Refuses a reset ``position`` that puts an object partly outside the workspace. Every
+        object and scale the reset may draw must fit there, so that whether a position is
+        refused does not depend on the draw."""
+        for drawn_name in self.object_names if name is None else (name,):
+            for drawn_scale in self.scales if scale is None else (scale,):
+                low, high = self._placeable(self._footprints[(drawn_name, drawn_scale)])
+                if not ((position_xy >= low).all() and (position_xy <= high).all()):
+                    raise ValueError(
+                        f"reset option position {np.round(position_xy, 4).tolist()} puts "
+                        f"{drawn_name} at scale {drawn_scale} partly outside the workspace: x "
+                        f"must lie in [{low[0]:.3f}, {high[0]:.3f}] and y in "
+                        f"[{low[1]:.3f}, {high[1]:.3f}] m (without the object and scale "
+                        "options, every object and scale the reset may draw must fit)"
+                    )
+
     @staticmethod
     def _placeable(footprint: float) -> tuple[np.ndarray, np.ndarray]:
         """The (x, y) box where an object of this footprint radius lies inside the crop."""
