@@ -258,6 +258,14 @@ def test_user_mesh_errors_are_clear(tmp_path):
     o3d.io.write_triangle_mesh(str(box), o3d.geometry.TriangleMesh.create_box())
     with pytest.raises(ValueError, match="size"):
         load_mesh_file(box, size=0.0)
+    # A tilted square sheet and a lone triangle: MuJoCo could not build their collision hulls.
+    square = tmp_path / "sheet.obj"
+    square.write_text("v 0 0 0\nv 1 0 0.5\nv 1 1 0.5\nv 0 1 0\nf 1 2 3 4\n")
+    triangle = tmp_path / "triangle.obj"
+    triangle.write_text("v 0 0 0\nv 1 0 0\nv 0 1 1\nf 1 2 3\n")
+    for flat in (square, triangle):
+        with pytest.raises(ValueError, match=f"{flat.name} is flat"):
+            load_mesh_file(flat)
 
 
 # --- surface samples -------------------------------------------------------------------------

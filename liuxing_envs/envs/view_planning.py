@@ -120,7 +120,10 @@ class ViewPlanningEnv(gym.Env):
     and the first depth image is taken from there (the start view looks straight down at the
     object region). The view sphere's centre is estimated from that first cloud (the centre
     of its bounding box at half its height), not from ground truth. Each step uses one view of
-    the budget; the episode is truncated after ``view_budget`` steps. It terminates early
+    the budget; the episode is truncated after ``view_budget`` steps (through ``gym.make``,
+    whose registered TimeLimit is the default budget of 4, pass ``max_episode_steps`` equal to
+    a larger ``view_budget``: the TimeLimit would otherwise cut the episode at 4, as
+    Gymnasium's time limits are set apart from an env's kwargs). It terminates early
     (success) only if ``terminate_on_success`` and coverage reaches ``success_coverage``.
     ``reset(options=...)`` may fix any of ``object`` (one of :attr:`object_names`), ``scale``
     (one of ``scales``), ``position`` ((x, y) in m; the whole object must stay inside the

@@ -783,6 +783,13 @@ def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> Ob
     used, faces = np.unique(faces, return_inverse=True)
     vertices = vertices[used] * (size / extent)
     faces = faces.reshape(-1, 3)
+    spread = np.linalg.svd(vertices - vertices.mean(axis=0), compute_uv=False)
+    if len(vertices) < 4 or spread[-1] <= 1e-9 * spread[0]:
+        # MuJoCo collides a mesh through its convex hull, which a flat one does not have.
+        raise ValueError(
+            f"mesh file {path} is flat: all its vertices lie in one plane, so it encloses no "
+            "volume; an object must be a solid (a sheet needs a thickness)"
+        )
     if _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1]
     low, high = vertices.min(axis=0), vertices.max(axis=0)
