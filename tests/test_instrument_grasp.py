@@ -364,6 +364,7 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
         ({"force_limit": float("nan")}, "force_limit"),
         ({"control_hz": 30.0}, "control_hz"),
         ({"mass_range": (2.0, 1.0)}, "mass_range"),
+        ({"friction_range": "12"}, "friction_range must be a pair of numbers"),
         ({"resolution": 64.5}, "resolution"),
         ({"terminate_on_success": "yes"}, "terminate_on_success"),
         ({"reach_sharpness": 0.0}, "reach_sharpness"),

@@ -156,6 +156,8 @@ def test_user_meshes_load(tmp_path):
         ({"object_set": "test"}, "object_set='test' is not allowed"),
         ({"motion": "teleport"}, "motion='teleport' is not allowed"),
         ({"radius_range": (0.5, 0.3)}, "radius_range must satisfy"),
+        ({"azimuth_range_deg": "09"}, "azimuth_range_deg must be a pair of numbers"),
+        ({"radius_range": (True, 0.5)}, "radius_range must be a pair of numbers"),
         ({"epsilon_fraction": -1.0}, "epsilon_fraction must be a number"),
         ({"objects": "box"}, "objects must be a non-empty list"),
         ({"objects": ["no_such_object"]}, "no_such_object"),

@@ -34,10 +34,15 @@ def require_number(name: str, value, low: float, high: float) -> None:
 
 
 def require_range(name: str, value, low: float, high: float) -> tuple[float, float]:
+    message = f"{name} must be a pair of numbers (min, max), got {value!r}"
     try:
-        first, second = (float(v) for v in value)
+        # A string unpacks too: "09" would become (0, 9).
+        first, second = value if not isinstance(value, str | bytes) else ()
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a pair (min, max), got {value!r}") from None
+        raise ValueError(message) from None
+    if not all(_is_number(v) for v in (first, second)):
+        raise ValueError(message)
+    first, second = float(first), float(second)
     if not (low <= first <= second <= high):
         raise ValueError(f"{name} must satisfy {low} <= min <= max <= {high}, got {value!r}")
     return first, second
@@ -50,15 +55,16 @@ def require_numbers(name: str, value, low: float, high: float) -> tuple[float, .
         items = list(value) if not isinstance(value, str | bytes) else []
     except TypeError:
         raise ValueError(message) from None
-    if not items or not all(
-        isinstance(v, int | float | np.integer | np.floating) and not isinstance(v, bool)
-        for v in items
-    ):
+    if not items or not all(_is_number(v) for v in items):
         raise ValueError(message)
     numbers = tuple(float(v) for v in items)
     if not all(math.isfinite(v) and low <= v <= high for v in numbers):
         raise ValueError(message)
     return numbers
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
 
 def checked_reset_options(options, checks: Mapping[str, Callable]) -> dict:
