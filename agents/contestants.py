@@ -355,10 +355,11 @@ def build_contestants(
             "render_mode is evaluate.py's to set (rgb_array for --video), not --env-kwargs"
         )
     for current in env_ids:
-        split = task_for(current).split_kwarg
+        task = task_for(current)
+        split = task.split_kwarg
         if split in env_kwargs:
             raise ContestantError(
-                f"the {split.replace('_', ' ')} is chosen with --{split.replace('_', '-')}, "
+                f"the {split.replace('_', ' ')} is chosen with {task.split_flag}, "
                 f"not --env-kwargs {split}=..."
             )
     for contestant in contestants:
@@ -385,7 +386,7 @@ def build_contestants(
         )
     for split_env in splits:
         if split_env not in env_ids:
-            flag = "--" + task_for(split_env).split_kwarg.replace("_", "-")
+            flag = task_for(split_env).split_flag
             raise ContestantError(
                 f"{flag} chooses {split_env}'s episodes, but nothing here runs in "
                 f"{split_env} (evaluating {', '.join(env_ids)}); drop {flag}"

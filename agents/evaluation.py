@@ -48,6 +48,11 @@ class Task:
     make_reference: Callable | None = None
 
     @property
+    def split_flag(self) -> str:
+        """evaluate.py's flag choosing the split (``--object-set``)."""
+        return "--" + self.split_kwarg.replace("_", "-")
+
+    @property
     def held_out_kwargs(self) -> dict:
         """Env kwargs selecting the held-out split."""
         return {self.split_kwarg: HELD_OUT_SPLIT}

@@ -35,12 +35,13 @@ def require_number(name: str, value, low: float, high: float) -> None:
 
 def require_range(name: str, value, low: float, high: float) -> tuple[float, float]:
     message = f"{name} must be a pair of numbers (min, max), got {value!r}"
+    if isinstance(value, str | bytes):  # it would unpack: "09" as the pair (0, 9)
+        raise ValueError(message)
     try:
-        # A string unpacks too: "09" would become (0, 9).
-        first, second = value if not isinstance(value, str | bytes) else ()
+        first, second = value
     except (TypeError, ValueError):
         raise ValueError(message) from None
-    if not all(_is_number(v) for v in (first, second)):
+    if not (_is_number(first) and _is_number(second)):
         raise ValueError(message)
     first, second = float(first), float(second)
     if not (low <= first <= second <= high):
