@@ -53,11 +53,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     )
     args = parser.parse_args(argv)
     named = args.sections is not None
-    args.sections = [s.strip() for s in (args.sections or ",".join(SECTIONS)).split(",")]
-    args.sections = [s for s in args.sections if s]
-    unknown = sorted(set(args.sections) - set(SECTIONS))
-    if unknown:
-        parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
+    args.sections = _sections(parser, args.sections)
     args.earlier = None
     if args.update:
         if not named:
@@ -85,6 +81,23 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                 "its targets compare sections, which must come from one machine"
             )
     return args
+
+
+def _sections(parser: argparse.ArgumentParser, text: str | None) -> list[str]:
+    """The sections --sections names; an empty or malformed list is refused, not read as
+    "all" or "none" (either would replace the whole report)."""
+    if text is None:
+        return list(SECTIONS)
+    allowed = f"name one or more of {','.join(SECTIONS)}, comma-separated"
+    names = [s.strip() for s in text.split(",")]
+    if not any(names):
+        parser.error(f"--sections {text!r} names no section; {allowed} (or leave it out for all)")
+    if not all(names):
+        parser.error(f"--sections {text!r} has an empty name between commas; {allowed}")
+    unknown = sorted(set(names) - set(SECTIONS))
+    if unknown:
+        parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
+    return names
 
 
 def _row(*cells) -> str:

@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 
+import benchmarks.__main__ as bench_cli
 from benchmarks import scaling
 from benchmarks.isolated import describe_cores
 from benchmarks.throughput import VIEW_DEFAULT
@@ -164,3 +165,63 @@ def test_scaling_speedups_are_taken_within_each_round():
     summary = scaling.summarize([200.0, 400.0, 150.0], [100.0, 200.0, 100.0])
     assert summary["speedup"] == 2.0
     assert (summary["median"], summary["min"], summary["max"]) == (200.0, 150.0, 400.0)
+
+
+class Measured(Exception):
+    """Raised in place of the measurements: the command line got past every check."""
+
+
+#: What a report's machine description holds (machine() is replaced by it in these tests).
+MACHINE = {
+    "cpu": "test CPU",
+    "cores": 2,
+    "usable_cores": 2,
+    "gl_renderer": "none",
+    "memory": "1 GiB",
+    "os": "Linux",
+    "python": "3.11",
+    "versions": {"mujoco": "0"},
+    "MUJOCO_GL": "egl",
+    "date": "2026-01-01 00:00",
+    "commit": "abc",
+}
+
+
+@pytest.fixture
+def cli(monkeypatch, capsys):
+    """``python -m benchmarks <argv>`` in-process with nothing measured: a refusal returns its
+    stderr (after checking the exit status 2); getting past the checks raises Measured."""
+
+    def measure(*args, **kwargs):
+        raise Measured(args)
+
+    monkeypatch.setattr(bench_cli, "run", measure)
+    monkeypatch.setattr(bench_cli, "machine", lambda: dict(MACHINE))
+
+    def refused(*argv: str) -> str:
+        with pytest.raises(SystemExit) as exit_:
+            bench_cli.main(list(argv))
+        assert exit_.value.code == 2
+        return " ".join(capsys.readouterr().err.split())
+
+    return refused
+
+
+def _old_report(folder) -> tuple:
+    """An earlier report's two files in ``folder``; a refused run must leave them as they are."""
+    md, earlier = folder / "RESULTS.md", folder / "RESULTS.json"
+    md.write_text("old report")
+    earlier.write_text("{}")
+    return md, earlier
+
+
+def test_sections_naming_nothing_or_with_gaps_are_refused_before_writing(tmp_path, cli):
+    md, earlier = _old_report(tmp_path)
+    # '' and ',' used to run every section and none, each replacing the report.
+    for sections in ("", ",", " , ", "physics,,split", "physics,"):
+        error = cli("--quick", "--sections", sections, "--out", str(md))
+        assert f"--sections {sections!r}" in error and ",".join(bench_cli.SECTIONS) in error
+        assert md.read_text() == "old report" and earlier.read_text() == "{}"
+    with pytest.raises(Measured) as measured:
+        bench_cli.main(["--quick", "--sections", " physics , split ", "--out", str(md)])
+    assert measured.value.args[0][:2] == (["physics", "split"], True)
