@@ -35,8 +35,13 @@ ASYNC_TWO_WORKER_SPEEDUP = 1.6
 
 
 def _parse(argv: list[str] | None) -> argparse.Namespace:
+    default_md = f"{DEFAULT_OUT.parent.name}/{DEFAULT_OUT.name}"
+    default_json = f"{DEFAULT_OUT.parent.name}/{DEFAULT_OUT.with_suffix('.json').name}"
     parser = argparse.ArgumentParser(
-        prog="python -m benchmarks", description=__doc__.splitlines()[0]
+        prog="python -m benchmarks",
+        description=f"{__doc__.splitlines()[0]} Writes the Markdown report to --out (default "
+        f"{default_md}) and the raw figures beside it, the same path with the suffix .json "
+        f"(default {default_json}), replacing both.",
     )
     parser.add_argument("--quick", action="store_true", help="short runs: a smoke test")
     parser.add_argument(
@@ -44,7 +49,14 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
         default=None,
         help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)",
     )
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="Markdown report path")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=DEFAULT_OUT,
+        help=f"the Markdown report (default: {default_md}); the raw figures are written to the "
+        f"same path with the suffix .json (default: {default_json}), so an --out ending in "
+        ".json is refused. A missing folder is created.",
+    )
     parser.add_argument(
         "--update",
         action="store_true",
@@ -54,11 +66,12 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     named = args.sections is not None
     args.sections = _sections(parser, args.sections)
+    args.json = _report_paths(parser, args.out)
     args.earlier = None
     if args.update:
         if not named:
             parser.error("--update re-measures the --sections it is given; name them")
-        path = args.out.with_suffix(".json")
+        path = args.json
         try:
             args.earlier = json.loads(path.read_text())
         except (OSError, ValueError) as error:
@@ -80,6 +93,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
                 f"{path} was measured on another machine ({', '.join(different)} differ): "
                 "its targets compare sections, which must come from one machine"
             )
+    _check_writable(parser, args.out, args.json)
     return args
 
 
@@ -98,6 +112,49 @@ def _sections(parser: argparse.ArgumentParser, text: str | None) -> list[str]:
     if unknown:
         parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
     return names
+
+
+def _report_paths(parser: argparse.ArgumentParser, out: Path) -> Path:
+    """The JSON path beside the Markdown report ``out``, once neither is a folder and they
+    differ."""
+    if out.is_dir():
+        parser.error(
+            f"--out {out} is a folder; --out names the Markdown report file, "
+            f"e.g. {out / 'RESULTS.md'}"
+        )
+    if out.suffix.lower() == ".json":
+        parser.error(
+            f"--out {out} ends in .json: --out names the Markdown report, and the raw figures go "
+            f"to the same path with the suffix .json, so one would overwrite the other; "
+            f"give e.g. {out.with_suffix('.md')}"
+        )
+    json_path = out.with_suffix(".json")
+    if json_path.is_dir():
+        parser.error(f"--out {out}: its raw figures go to {json_path}, which is a folder")
+    return json_path
+
+
+def _check_writable(parser: argparse.ArgumentParser, out: Path, json_path: Path) -> None:
+    """Both report files can be written: the folder exists or is created, an existing file
+    opens for writing (left as it is), and a new one is created and removed again. Checked
+    before measuring, which takes minutes."""
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        file = next((p for p in (out.parent, *out.parent.parents) if p.is_file()), None)
+        why = f"{file} is a file, not a folder" if file else error.strerror
+        parser.error(f"--out {out}: cannot create its folder {out.parent}: {why}")
+    for path in (out, json_path):
+        try:
+            if path.exists():
+                with path.open("r+b"):  # not "w": a refused or failed run keeps the old report
+                    pass
+            else:
+                with path.open("xb"):
+                    pass
+                path.unlink()
+        except OSError as error:
+            parser.error(f"--out {out}: cannot write {path}: {error.strerror or error}")
 
 
 def _row(*cells) -> str:
@@ -509,19 +566,17 @@ def main(argv: list[str] | None = None) -> int:
     command = "MUJOCO_GL=egl python -m benchmarks " + shlex.join(
         sys.argv[1:] if argv is None else argv
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
 
     def save(results: dict) -> None:
         args.out.write_text(report(results, command.strip()))
-        args.out.with_suffix(".json").write_text(json.dumps(results, indent=1, default=str))
+        args.json.write_text(json.dumps(results, indent=1, default=str))
 
     if args.earlier is not None and "command" not in args.earlier:
         # Reports written before the JSON kept the command: read it off the Markdown.
-        found = (
-            re.search(r"Generated by `([^`]+)`", args.out.read_text())
-            if args.out.exists()
-            else None
-        )
+        try:
+            found = re.search(r"Generated by `([^`]+)`", args.out.read_text(errors="replace"))
+        except OSError:
+            found = None
         args.earlier["command"] = found.group(1) if found else "an earlier command"
     run(args.sections, args.quick, on_progress=save, earlier=args.earlier, command=command.strip())
     print(args.out.read_text())

@@ -5,7 +5,9 @@ they claim. The figures themselves are machine-dependent and are not asserted.""
 from __future__ import annotations
 
 import json
+import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -225,3 +227,54 @@ def test_sections_naming_nothing_or_with_gaps_are_refused_before_writing(tmp_pat
     with pytest.raises(Measured) as measured:
         bench_cli.main(["--quick", "--sections", " physics , split ", "--out", str(md)])
     assert measured.value.args[0][:2] == (["physics", "split"], True)
+
+
+def test_an_out_ending_in_json_is_refused_as_report_and_figures_would_collide(tmp_path, cli):
+    for name in ("RESULTS.json", "RESULTS.JSON"):
+        out = tmp_path / name
+        error = cli("--quick", "--sections", "physics", "--out", str(out))
+        assert f"--out {out} ends in .json" in error and "RESULTS.md" in error
+        assert not out.exists()
+    # A report path that is fine gets past the checks, whose write probe leaves no file.
+    with pytest.raises(Measured):
+        bench_cli.main(["--quick", "--sections", "physics", "--out", str(tmp_path / "new/R.md")])
+    assert list((tmp_path / "new").iterdir()) == []
+
+
+def test_an_out_that_cannot_be_written_is_refused_before_measuring(tmp_path, cli):
+    md, _ = _old_report(tmp_path)
+    (tmp_path / "figures.json").mkdir()
+    blocked = [
+        (tmp_path, "is a folder"),
+        (tmp_path / "figures.md", f"{tmp_path / 'figures.json'}, which is a folder"),
+        (md / "R.md", f"{md} is a file, not a folder"),
+        (md / "deeper/R.md", f"{md} is a file, not a folder"),
+    ]
+    if Path("/proc/self").is_dir():  # a folder where not even root may create files
+        blocked.append((Path("/proc/R.md"), "cannot write /proc/R.md"))
+    if os.geteuid() != 0:  # root writes whatever the permissions say
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        (locked / "RESULTS.md").write_text("old report")
+        locked.chmod(0o500)
+        blocked += [
+            (locked / "new.md", "cannot write"),
+            (locked / "sub/R.md", "cannot create its folder"),
+        ]
+        readonly = tmp_path / "readonly.md"
+        readonly.write_text("old report")
+        readonly.chmod(0o444)
+        blocked.append((readonly, f"cannot write {readonly}"))
+    for out, message in blocked:
+        error = cli("--quick", "--sections", "physics", "--out", str(out))
+        assert f"--out {out}" in error and message in error, error
+    assert md.read_text() == "old report"
+
+
+def test_help_says_which_files_are_written(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        bench_cli.main(["--help"])
+    assert exit_.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "benchmarks/RESULTS.md" in text and "benchmarks/RESULTS.json" in text
+    assert "same path with the suffix .json" in text
