@@ -71,28 +71,7 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     if args.update:
         if not named:
             parser.error("--update re-measures the --sections it is given; name them")
-        path = args.json
-        try:
-            args.earlier = json.loads(path.read_text())
-        except (OSError, ValueError) as error:
-            parser.error(f"--update needs the earlier report's {path}: {error}")
-        if not isinstance(args.earlier, dict) or "machine" not in args.earlier:
-            parser.error(f"{path} is not a benchmark report's JSON")
-        if bool(args.earlier.get("quick")) != args.quick:
-            parser.error(
-                f"{path} is {'a quick' if args.quick is False else 'a full'} run's; "
-                "--update keeps runs of one kind"
-            )
-        mine, theirs = machine(), args.earlier["machine"]
-        theirs = {"usable_cores": theirs.get("cores"), **theirs}  # reports before the field
-        different = [
-            k for k in ("cpu", "cores", "usable_cores", "memory") if mine.get(k) != theirs.get(k)
-        ]
-        if different:
-            parser.error(
-                f"{path} was measured on another machine ({', '.join(different)} differ): "
-                "its targets compare sections, which must come from one machine"
-            )
+        args.earlier = _earlier(parser, args)
     _check_writable(parser, args.out, args.json)
     return args
 
@@ -132,6 +111,49 @@ def _report_paths(parser: argparse.ArgumentParser, out: Path) -> Path:
     if json_path.is_dir():
         parser.error(f"--out {out}: its raw figures go to {json_path}, which is a folder")
     return json_path
+
+
+def _earlier(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+    """The earlier report's results that --update keeps, once they are known to come from
+    this machine, be of the same kind of run, and make a report with the new sections (a
+    malformed file fails here, not after the measurements)."""
+    path = args.json
+    try:
+        earlier = json.loads(path.read_text())
+    except OSError as error:
+        parser.error(f"--update needs the earlier report's {path}: {error.strerror or error}")
+    except ValueError as error:  # not JSON, or not UTF-8 text
+        parser.error(f"--update: the earlier report's {path} is not valid JSON ({error})")
+    if not isinstance(earlier, dict) or not isinstance(earlier.get("machine"), dict):
+        parser.error(f"--update: {path} is not a benchmark report's JSON (no machine description)")
+    if bool(earlier.get("quick")) != args.quick:
+        parser.error(
+            f"{path} is {'a quick' if args.quick is False else 'a full'} run's; "
+            "--update keeps runs of one kind"
+        )
+    mine, theirs = machine(), earlier["machine"]
+    theirs = {"usable_cores": theirs.get("cores"), **theirs}  # reports before the field
+    different = [
+        k for k in ("cpu", "cores", "usable_cores", "memory") if mine.get(k) != theirs.get(k)
+    ]
+    if different:
+        parser.error(
+            f"{path} was measured on another machine ({', '.join(different)} differ): "
+            "its targets compare sections, which must come from one machine"
+        )
+    # A dry run of the report of what is kept: any section, field or machine entry that
+    # report() cannot read is found now rather than after the first measurement, whatever
+    # error the malformed data raises.
+    stamp = {"date": "", "commit": "", "command": ""}
+    try:
+        report(_keep(earlier, args.sections, stamp), "")
+    except Exception as error:
+        parser.error(
+            f"--update: {path} is not a benchmark report's JSON in the shape this version "
+            f"writes ({type(error).__name__}: {error}); re-measure without --update to "
+            "replace it"
+        )
+    return earlier
 
 
 def _check_writable(parser: argparse.ArgumentParser, out: Path, json_path: Path) -> None:
@@ -193,11 +215,8 @@ def run(
     if earlier is None:
         results: dict = {"machine": current, "quick": quick, "command": command}
     else:
-        results = {**earlier, "remeasured": dict(earlier.get("remeasured", {}))}
         stamp = {"date": current["date"], "commit": current["commit"], "command": command}
-        for section in sections:
-            results.pop(section, None)
-            results["remeasured"][section] = stamp
+        results = _keep(earlier, sections, stamp)
     if "throughput" in sections:
         results["throughput"] = []
         for config in throughput.CONFIGS:
@@ -274,6 +293,16 @@ def run(
             512 if quick else None
         )
     on_progress(results)  # also when a section measured nothing (peers skipped)
+    return results
+
+
+def _keep(earlier: dict, sections: list[str], stamp: dict) -> dict:
+    """An earlier report's results without ``sections``, which are listed as re-measured
+    with ``stamp`` (date, commit, command)."""
+    results = {**earlier, "remeasured": dict(earlier.get("remeasured", {}))}
+    for section in sections:
+        results.pop(section, None)
+        results["remeasured"][section] = stamp
     return results
 
 

@@ -271,6 +271,37 @@ def test_an_out_that_cannot_be_written_is_refused_before_measuring(tmp_path, cli
     assert md.read_text() == "old report"
 
 
+def test_update_refuses_a_malformed_earlier_report_naming_it(tmp_path, cli):
+    md = tmp_path / "RESULTS.md"
+    earlier = md.with_suffix(".json")
+    good = {
+        "machine": MACHINE,
+        "quick": True,
+        "command": "python -m benchmarks --quick",
+        "split": [{"env_id": "ViewPlanning-v0", "mode": "m", "ms_per_step": 1.0, "phases": {}}],
+    }
+    not_json = "is not valid JSON"
+    wrong_shape = "is not a benchmark report's JSON"
+    for text, message in (
+        (json.dumps(good)[:40], not_json),  # truncated
+        ("no report here", not_json),
+        (b"\xff\xfe", not_json),
+        ("[]", wrong_shape),
+        (json.dumps({**good, "machine": ["test CPU"]}), wrong_shape),
+        (json.dumps({**good, "remeasured": ["split"]}), wrong_shape),
+        (json.dumps({**good, "split": "fast"}), wrong_shape),
+        (json.dumps({**good, "machine": {**MACHINE, "versions": None}}), wrong_shape),
+    ):
+        (earlier.write_bytes if isinstance(text, bytes) else earlier.write_text)(text)
+        error = cli("--quick", "--update", "--sections", "physics", "--out", str(md))
+        assert "--update" in error and str(earlier) in error and message in error, error
+    # The well-formed report passes, also with the malformed section as the one re-measured.
+    for kept in (good, {**good, "split": "fast"}):
+        earlier.write_text(json.dumps(kept))
+        with pytest.raises(Measured):
+            bench_cli.main(["--quick", "--update", "--sections", "split", "--out", str(md)])
+
+
 def test_help_says_which_files_are_written(capsys):
     with pytest.raises(SystemExit) as exit_:
         bench_cli.main(["--help"])
