@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -124,12 +125,35 @@ def scan(
     return summary
 
 
+def _check_out(parser: argparse.ArgumentParser, out: Path) -> None:
+    """``out`` is, or can be made, a folder the scan can write its files into."""
+    if out.exists() and not out.is_dir():
+        parser.error(f"--out {out} is a file; --out names the folder the scan writes into")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        file = next((p for p in out.parents if p.is_file()), None)
+        why = f"{file} is a file, not a folder" if file else error.strerror
+        parser.error(f"--out {out}: cannot create the folder: {why}")
+    try:
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as error:
+        parser.error(f"--out {out}: cannot write into the folder: {error.strerror or error}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m liuxing_envs.demo",
         description="Scan a mug with the wrist depth camera and write the fused cloud (.ply).",
     )
-    parser.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("outputs/demo"),
+        help="output folder (created if missing; default: %(default)s): scan.ply, summary.json "
+        "and depth_NN.npy",
+    )
     parser.add_argument("--views", type=int, default=DEMO_VIEWS, help="viewpoints on the ring")
     parser.add_argument("--radius", type=float, default=DEMO_RADIUS, help="view distance (m)")
     parser.add_argument(
@@ -139,7 +163,14 @@ def main(argv: list[str] | None = None) -> int:
         help="view elevation above the table (degrees)",
     )
     parser.add_argument("--backend", choices=BACKENDS, default="auto", help="depth renderer")
-    parser.add_argument("--motion", choices=MOTION_MODES, default="kinematic")
+    parser.add_argument(
+        "--motion",
+        choices=MOTION_MODES,
+        default="kinematic",
+        help="how the arm moves between views, one of "
+        f"{', '.join(MOTION_MODES)} (default: %(default)s): kinematic sets the joints along "
+        "a collision-checked path (fast); dynamic drives the servos along it under physics",
+    )
     parser.add_argument(
         "--resolution", type=int, default=DEMO_RESOLUTION, help="depth image side (pixels)"
     )
@@ -152,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--elevation must be within (0, 90] degrees, got {args.elevation}")
     if not 8 <= args.resolution <= 1024:
         parser.error(f"--resolution must be within [8, 1024] pixels, got {args.resolution}")
+    _check_out(parser, args.out)
     summary = scan(
         args.out,
         args.views,

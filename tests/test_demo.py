@@ -1,6 +1,7 @@
 """End-to-end smoke test of the main job: scan the mug, fuse, write a .ply."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -48,3 +49,34 @@ def test_bad_flags_exit_with_a_clear_message():
     )
     assert result.returncode == 2
     assert "--views must be at least 1, got 0" in result.stderr
+
+
+def _refused(capsys, *argv: str) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        main(list(argv))
+    assert exit_.value.code == 2
+    return " ".join(capsys.readouterr().err.split())
+
+
+def test_an_out_that_is_a_file_or_not_writable_is_refused(tmp_path, capsys):
+    file = tmp_path / "scan.ply"
+    file.write_text("not a folder")
+    error = _refused(capsys, "--out", str(file))
+    assert f"--out {file} is a file" in error and "folder" in error
+    error = _refused(capsys, "--out", str(file / "inside"))
+    assert f"{file} is a file, not a folder" in error
+    assert file.read_text() == "not a folder"
+    if os.geteuid() != 0:  # root writes whatever the permissions say
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        assert "cannot write into the folder" in _refused(capsys, "--out", str(locked))
+        assert "cannot create the folder" in _refused(capsys, "--out", str(locked / "sub"))
+
+
+def test_motion_help_lists_the_choices(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0
+    text = capsys.readouterr().out
+    motion = text.split("--motion {kinematic,dynamic}")[-1].split("--resolution")[0]
+    assert "kinematic" in motion and "dynamic" in motion and "default: kinematic" in motion
