@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import tempfile
 import time
@@ -35,6 +36,9 @@ DEMO_RESOLUTION = 128  # pixels, square
 #: within this box around the object.
 WORKSPACE_HALF_WIDTH = 0.25  # m
 TABLE_CLEARANCE = 0.003  # m
+#: The files a scan writes into its folder (depth images are depth_00.npy, depth_01.npy, ...).
+OUTPUT_FILES = ("scan.ply", "summary.json")
+DEPTH_FILE = re.compile(r"depth_\d{2,}\.npy")
 
 
 #: The mug's primitives: (name, geom type, MuJoCo size, position in the mug's frame), metres.
@@ -64,7 +68,11 @@ def scan(
     resolution: int = DEMO_RESOLUTION,
     voxel_size: float = DEMO_VOXEL_SIZE,
 ) -> dict:
-    """Run the scan and write ``scan.ply``, ``depth_XX.npy`` and ``summary.json`` to out_dir."""
+    """Run the scan and write ``scan.ply``, ``depth_XX.npy`` and ``summary.json`` to out_dir.
+
+    Those files from an earlier scan into out_dir are removed first, so that the folder holds
+    one scan's outputs only (a depth image of a view this scan did not capture would pass
+    for one of it); other files in out_dir are left alone."""
     spec = load_scene_spec()
     add_demo_object(spec)
     model = spec.compile()
@@ -73,6 +81,7 @@ def scan(
     arm = Arm(model, data)
     intrinsics = CameraIntrinsics(width=resolution, height=resolution)
     out_dir.mkdir(parents=True, exist_ok=True)
+    remove_outputs(out_dir)
     center = np.array([*DEMO_OBJECT_CENTER, 0.05])
     lower = center - [WORKSPACE_HALF_WIDTH, WORKSPACE_HALF_WIDTH, center[2] - TABLE_CLEARANCE]
     upper = center + WORKSPACE_HALF_WIDTH
@@ -125,6 +134,22 @@ def scan(
     return summary
 
 
+def _is_output(name: str) -> bool:
+    return name in OUTPUT_FILES or DEPTH_FILE.fullmatch(name) is not None
+
+
+def remove_outputs(out_dir: Path) -> list[Path]:
+    """Remove the files a scan writes (:data:`OUTPUT_FILES` and depth images) from
+    ``out_dir``: only files and links with exactly those names go. A link goes, not what it
+    points to, which the scan would otherwise overwrite through it. Returns what was removed."""
+    removed = []
+    for path in sorted(out_dir.iterdir()):
+        if _is_output(path.name) and (path.is_symlink() or path.is_file()):
+            path.unlink()
+            removed.append(path)
+    return removed
+
+
 def _check_out(parser: argparse.ArgumentParser, out: Path) -> None:
     """``out`` is, or can be made, a folder the scan can write its files into."""
     if out.exists() and not out.is_dir():
@@ -140,6 +165,13 @@ def _check_out(parser: argparse.ArgumentParser, out: Path) -> None:
             pass
     except OSError as error:
         parser.error(f"--out {out}: cannot write into the folder: {error.strerror or error}")
+    try:
+        contents = list(out.iterdir())
+    except OSError as error:
+        parser.error(f"--out {out}: cannot list the folder: {error.strerror or error}")
+    for path in contents:
+        if _is_output(path.name) and path.is_dir() and not path.is_symlink():
+            parser.error(f"--out {out}: {path} is a folder, where the scan writes a file")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -152,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
         type=Path,
         default=Path("outputs/demo"),
         help="output folder (created if missing; default: %(default)s): scan.ply, summary.json "
-        "and depth_NN.npy",
+        "and depth_NN.npy; those files from an earlier scan are removed first, others are kept",
     )
     parser.add_argument("--views", type=int, default=DEMO_VIEWS, help="viewpoints on the ring")
     parser.add_argument("--radius", type=float, default=DEMO_RADIUS, help="view distance (m)")

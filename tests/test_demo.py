@@ -73,6 +73,31 @@ def test_an_out_that_is_a_file_or_not_writable_is_refused(tmp_path, capsys):
         assert "cannot create the folder" in _refused(capsys, "--out", str(locked / "sub"))
 
 
+def test_a_rerun_with_fewer_views_leaves_only_its_own_depth_images(tmp_path, capsys):
+    quick = ("--resolution", "16", "--backend", "raycast", "--out", str(tmp_path))
+    assert main(["--views", "4", *quick]) == 0
+    # Files the scan did not write stay, whatever their names; a link named like a depth
+    # image goes, not the file it points to.
+    kept = {"notes.txt": "mine", "depth_5.npy": "not the scan's name", "depth_old.npy": "mine"}
+    for name, text in kept.items():
+        (tmp_path / name).write_text(text)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "depth.npy").write_text("linked")
+    (tmp_path / "depth_03.npy").unlink()
+    (tmp_path / "depth_03.npy").symlink_to(elsewhere / "depth.npy")
+    assert main(["--views", "2", *quick]) == 0
+    assert sorted(p.name for p in tmp_path.glob("depth_??.npy")) == ["depth_00.npy", "depth_01.npy"]
+    assert {name: (tmp_path / name).read_text() for name in kept} == kept
+    assert (elsewhere / "depth.npy").read_text() == "linked"
+    assert json.loads((tmp_path / "summary.json").read_text())["views_requested"] == 2
+    # A folder with an output's name is neither removed nor written into.
+    (tmp_path / "scan.ply").unlink()
+    (tmp_path / "scan.ply").mkdir()
+    error = _refused(capsys, "--views", "2", *quick)
+    assert f"{tmp_path / 'scan.ply'} is a folder, where the scan writes a file" in error
+
+
 def test_motion_help_lists_the_choices(capsys):
     with pytest.raises(SystemExit) as exit_:
         main(["--help"])
