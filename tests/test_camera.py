@@ -542,6 +542,47 @@ def _tabletop_with_a_housed_camera(far_obstacles: int) -> mujoco.MjModel:
     return spec.compile()
 
 
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    quat = rng.normal(size=4)
+    rotation = np.empty(9)
+    mujoco.mju_quat2Mat(rotation, quat / np.linalg.norm(quat))
+    return rotation.reshape(3, 3)
+
+
+def test_pixel_window_holds_every_ray_that_meets_the_box():
+    # The table shortcut tests an obstacle's box only against the rays in the pixel window
+    # its corners project to (when all of them are in front of the camera). Every pixel ray
+    # that the slab test finds meeting the box must lie in that window, for boxes anywhere
+    # in or near the field of view, at any orientation, with square and oblong images.
+    from liuxing_envs.sim.camera import _BOX_CORNERS, _PixelGrid, _TableShortcut
+
+    rng = np.random.default_rng(2)
+    tested = narrow = 0
+    for intrinsics in (CameraIntrinsics(), CameraIntrinsics(width=48, height=30, fovy_deg=70.0)):
+        grid = _PixelGrid(intrinsics)
+        rays_cam = camera_rays(intrinsics, "unit").reshape(-1, 3)
+        for _ in range(400):
+            rotation, frame = _random_rotation(rng), _random_rotation(rng)
+            position = rng.uniform(-0.2, 0.2, 3)
+            ahead = [rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4), -rng.uniform(-0.05, 0.6)]
+            centre = position + rotation @ ahead
+            box_centre, half = rng.uniform(-0.02, 0.02, 3), rng.uniform(0.002, 0.1, 3)
+            rays = rays_cam @ rotation.T
+            meets = _TableShortcut._meets_box(frame, centre, box_centre, half, position, rays)
+            offsets = (box_centre + _BOX_CORNERS * half) @ frame.T + (centre - position)
+            corners = offsets @ rotation  # in the camera frame
+            window = grid.window(corners)
+            if window is None:
+                assert corners[:, 2].max() >= -1e-3  # only a box not wholly in front has none
+                continue
+            inside = np.zeros((grid.height, grid.width), dtype=bool)
+            inside[window] = True
+            assert not (meets & ~inside.ravel()).any()
+            tested += bool(meets.any())
+            narrow += bool(meets.any() and inside.sum() < 0.5 * inside.size)
+    assert tested >= 300 and narrow >= 200  # boxes in view, most windows a small part
+
+
 def test_a_geom_touching_the_optical_centre_is_never_culled():
     # Rounding puts a housing face through the optical centre either side of the image
     # plane; mj_multiRay then reports every forward ray hitting it at distance 0. With more

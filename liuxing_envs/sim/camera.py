@@ -102,6 +102,15 @@ _SHORTCUT_EDGE_MARGIN = 1e-9
 # A geom this close to the field of view counts as in it: one touching the optical centre
 # (a housing face through it) lands a rounding error either side of the image plane.
 _VIEW_MARGIN = 1e-6
+# The pixel window of an obstacle's box (see _PixelGrid.window) is widened by this many
+# pixels, far more than the rounding of its corners' projections, and is only taken when every
+# corner lies this many metres in front of the camera (closer, it can reach any pixel).
+_WINDOW_MARGIN_PX = 1e-3
+_WINDOW_MIN_DEPTH = 1e-3
+#: The eight corners of a box (half-size 1) in its own frame.
+_BOX_CORNERS = np.array(
+    [[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)], dtype=np.float64
+)
 
 
 # --- intrinsics ------------------------------------------------------------------------------
@@ -528,23 +537,31 @@ def _ray_visible(model: mujoco.MjModel, geomgroup: np.ndarray) -> np.ndarray:
     return (geomgroup[group] != 0) & (alpha != 0)
 
 
+def _shortcut_input_views(model: mujoco.MjModel) -> tuple[np.ndarray, ...]:
+    """Views of what a :class:`_TableShortcut` is made from: what :func:`_ray_visible`
+    reads, and where and how large the geoms are. They look into the model's own memory, so
+    kept, they show its later changes without the cost of making them again per image."""
+    return (
+        model.geom_group,
+        model.geom_rgba[:, 3],
+        model.geom_matid,
+        model.mat_rgba[:, 3],
+        model.geom_size,
+        model.geom_pos,
+        model.geom_quat,
+        model.body_pos,
+        model.body_quat,
+    )
+
+
 def _shortcut_inputs(model: mujoco.MjModel) -> tuple[bytes, ...]:
     """What a :class:`_TableShortcut` is made from, to tell when to make it again (a few
-    µs): what :func:`_ray_visible` reads, and where and how large the geoms are."""
-    return tuple(
-        array.tobytes()
-        for array in (
-            model.geom_group,
-            model.geom_rgba[:, 3],
-            model.geom_matid,
-            model.mat_rgba[:, 3],
-            model.geom_size,
-            model.geom_pos,
-            model.geom_quat,
-            model.body_pos,
-            model.body_quat,
-        )
-    )
+    µs): the bytes of :func:`_shortcut_input_views`."""
+    return _snapshot(_shortcut_input_views(model))
+
+
+def _snapshot(views: tuple[np.ndarray, ...]) -> tuple[bytes, ...]:
+    return tuple(view.tobytes() for view in views)
 
 
 class _TableShortcut:
@@ -556,9 +573,11 @@ class _TableShortcut:
     axis-aligned box geom with the largest top face; the obstacles are every other geom a ray
     could meet first: the movable ones and the static ones rising above that face. A ray
     from a camera above the face that meets it inside its rectangle, and misses every
-    obstacle's bounding box (tested only for the rays that pass within its bounding sphere),
-    lands there first. Its distance is computed here with the same floating-point operations
-    as MuJoCo's ray-box test, so the image is bit for bit the one ``mj_multiRay`` gives
+    obstacle's bounding box, lands there first. Only the rays that may meet a box are tested
+    against it: those in the pixel window its corners project to (:class:`_PixelGrid`) when
+    the whole box is in front of the camera, else those passing within its bounding sphere.
+    An answered ray's distance is computed here with the same floating-point operations as
+    MuJoCo's ray-box test, so the image is bit for bit the one ``mj_multiRay`` gives
     (``tests/test_camera.py`` checks this on random views); every other ray is cast. Scenes
     without such a table, with a static plane above it, or with more than
     ``_SHORTCUT_MAX_SCENE_OBSTACLES`` obstacles get ``None`` from :meth:`for_scene`. When
@@ -623,12 +642,17 @@ class _TableShortcut:
         rays: np.ndarray,
         cutoff: float,
         in_view: np.ndarray | None = None,
+        *,
+        grid: _PixelGrid | None = None,
+        rotation: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """``(dist, to_cast)``: the table distances of the rays it answers (-1 elsewhere) and
         the indices of the rays still to cast; None when the camera is not above the table,
         the table is beyond the cut-off, or more than ``_SHORTCUT_MAX_OBSTACLES`` obstacles
         are in view (then every ray is cast). ``in_view`` (a mask over :attr:`obstacles`)
-        leaves out the obstacles no ray can reach."""
+        leaves out the obstacles no ray can reach. With ``grid`` and the camera's
+        ``rotation`` (``rays`` are then the grid's pixel rays in row-major order), only the
+        rays in each obstacle's pixel window are tested against it."""
         kept = slice(None) if in_view is None else in_view
         obstacles = self.obstacles[kept]
         if obstacles.size > _SHORTCUT_MAX_OBSTACLES:
@@ -647,45 +671,101 @@ class _TableShortcut:
         answered &= (edge_x <= self.half[0] - _SHORTCUT_EDGE_MARGIN) & (
             edge_y <= self.half[1] - _SHORTCUT_EDGE_MARGIN
         )
-        if obstacles.size:
-            # Bounding spheres first (cheap), then the rays that pass near one are tested
-            # against every obstacle's oriented bounding box.
-            centres = data.geom_xpos[obstacles] - position  # (k, 3)
-            along = rays @ centres.T  # (rays, k)
-            gap2 = np.einsum("ki,ki->k", centres, centres) - along * along
-            near = np.flatnonzero(answered & (gap2 <= self.radii2[kept]).any(axis=1))
-            if near.size:
-                answered[near] = ~self._meets_a_box(data, obstacles, kept, position, rays[near])
+        # Each obstacle in turn takes away the rays that may meet its box; only rays still
+        # answered are tested, and with the image's pixel grid only those in the box's window.
+        rows = ids = None
+        if grid is not None:
+            rows = answered.reshape(grid.height, grid.width)
+            ids = grid.pixel_ids
+        centres, halves, radii2 = self.box_centres[kept], self.box_halves[kept], self.radii2[kept]
+        for j, geom in enumerate(obstacles.tolist()):
+            frame = data.geom_xmat[geom].reshape(3, 3)  # columns: the geom's axes in the world
+            centre = data.geom_xpos[geom]
+            window = None
+            if grid is not None:
+                corners = (centres[j] + _BOX_CORNERS * halves[j]) @ frame.T + (centre - position)
+                window = grid.window(corners @ rotation)
+            if window is None:
+                candidates = np.flatnonzero(answered)
+            else:
+                inside = rows[window]
+                candidates = ids[window][inside] if inside.any() else ids[:0, 0]
+            if not candidates.size:
+                continue
+            towards = rays.take(candidates, axis=0)
+            if window is None:  # the bounding sphere first: cheap, and rules out most rays
+                offset_c = centre - position
+                along = towards @ offset_c
+                near = float(offset_c @ offset_c) - along * along <= radii2[j]
+                candidates, towards = candidates[near], towards[near]
+                if not candidates.size:
+                    continue
+            meets = self._meets_box(frame, centre, centres[j], halves[j], position, towards)
+            answered[candidates[meets]] = False
         missed = ~answered
         dist[missed] = -1.0
         return dist, np.flatnonzero(missed)
 
-    def _meets_a_box(
-        self, data: mujoco.MjData, obstacles: np.ndarray, kept, position: np.ndarray, rays
-    ) -> np.ndarray:
-        """Per ray: whether it may enter an obstacle's bounding box ahead of the camera
-        (slab test in each box's frame; True also where the arithmetic gives NaN)."""
-        frames = data.geom_xmat[obstacles].reshape(-1, 3, 3)  # columns: geom axes in the world
-        origins = np.einsum("ki,kij->kj", position - data.geom_xpos[obstacles], frames)
-        origins -= self.box_centres[kept]
-        halves = self.box_halves[kept]
+    @staticmethod
+    def _meets_box(frame, centre, box_centre, half, position, rays) -> np.ndarray:
+        """Per ray: whether it may enter the box (``box_centre``, ``half`` in the frame of a
+        geom at ``centre`` with axes ``frame``) ahead of the camera (slab test in the box's
+        frame; True also where the arithmetic gives NaN)."""
+        origin = ((position - centre) @ frame - box_centre).tolist()
+        directions = (rays @ frame).T  # rows: the rays' components along the box axes
         enter = leave = None
-        # One box axis at a time on (rays, k) arrays: numpy reduces a length-3 axis slowly.
-        for axis in range(3):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                inverse = 1.0 / (rays @ frames[:, :, axis].T)
-                low = (-halves[:, axis] - origins[:, axis]) * inverse
-                high = (halves[:, axis] - origins[:, axis]) * inverse
-            near, far = np.minimum(low, high), np.maximum(low, high)
-            enter = near if enter is None else np.maximum(enter, near)
-            leave = far if leave is None else np.minimum(leave, far)
-        misses = (enter > leave) | (leave < 0.0)
-        return ~misses.all(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for axis in range(3):
+                inverse = 1.0 / directions[axis]
+                low = (-half[axis] - origin[axis]) * inverse
+                high = (half[axis] - origin[axis]) * inverse
+                near, far = np.minimum(low, high), np.maximum(low, high)
+                enter = near if enter is None else np.maximum(enter, near, out=enter)
+                leave = far if leave is None else np.minimum(leave, far, out=leave)
+        misses = enter > leave
+        misses |= leave < 0.0
+        return ~misses
+
+
+class _PixelGrid:
+    """The pixel rays of an image, as seen by :meth:`_TableShortcut.solve`: the pinhole that
+    maps a direction in the camera frame to a pixel, to bound which pixels' rays can meet a
+    box without testing every ray."""
+
+    def __init__(self, intrinsics: CameraIntrinsics) -> None:
+        self.height, self.width = intrinsics.height, intrinsics.width
+        self.fx, self.fy = intrinsics.fx, intrinsics.fy
+        self.cx, self.cy = intrinsics.cx, intrinsics.cy
+        #: Row-major ray index of each pixel, (height, width).
+        self.pixel_ids = np.arange(self.height * self.width).reshape(self.height, self.width)
+
+    def window(self, corners: np.ndarray) -> tuple[slice, slice] | None:
+        """Rows and columns of the pixels whose rays may meet the convex hull of ``corners``
+        (camera frame, ``(n, 3)``): a box in front of the camera projects inside the hull of
+        its projected corners. None when a corner is not in front (then any pixel may)."""
+        depth = -corners[:, 2]
+        if not depth.min() > _WINDOW_MIN_DEPTH:
+            return None
+        # Pixel (i, j) looks along ((j + 0.5 - cx) / fx, -(i + 0.5 - cy) / fy, -1).
+        x = corners[:, 0] / depth
+        y = corners[:, 1] / depth
+        x_min, x_max, y_min, y_max = float(x.min()), float(x.max()), float(y.min()), float(y.max())
+        if not math.isfinite(x_min + x_max + y_min + y_max):
+            return None
+        first_col = math.ceil(self.cx - 0.5 + self.fx * x_min - _WINDOW_MARGIN_PX)
+        last_col = math.floor(self.cx - 0.5 + self.fx * x_max + _WINDOW_MARGIN_PX)
+        first_row = math.ceil(self.cy - 0.5 - self.fy * y_max - _WINDOW_MARGIN_PX)
+        last_row = math.floor(self.cy - 0.5 - self.fy * y_min + _WINDOW_MARGIN_PX)
+        return (
+            slice(max(first_row, 0), max(last_row + 1, 0)),
+            slice(max(first_col, 0), max(last_col + 1, 0)),
+        )
 
 
 class _SceneCache(NamedTuple):
     """A ray-cast backend's record of one scene model."""
 
+    views: tuple  #: its _shortcut_input_views, to read the model's current inputs
     inputs: tuple  #: its _shortcut_inputs when this was made
     seen: np.ndarray  #: per geom, whether rays can hit it (_ray_visible)
     shortcut: _TableShortcut | None
@@ -716,6 +796,7 @@ class _RaycastBackend:
         self._dist = np.empty(self._nray, dtype=np.float64)
         self._frustum = _ViewFrustum(intrinsics)
         self._cutoff = self._frustum.ray_length
+        self._grid = _PixelGrid(intrinsics)
         # Per scene model (MjModel hashes by identity).
         self._scenes: dict[mujoco.MjModel, _SceneCache] = {}
 
@@ -735,7 +816,9 @@ class _RaycastBackend:
                 in_view = self._frustum.may_reach(
                     model, data, shortcut.obstacles, position, rotation
                 )
-            solved = shortcut.solve(data, position, rays, self._cutoff, in_view)
+            solved = shortcut.solve(
+                data, position, rays, self._cutoff, in_view, grid=self._grid, rotation=rotation
+            )
         if solved is None:
             dist = self._dist
             self._cast(model, data, position, rays, dist, cached.seen)
@@ -781,12 +864,16 @@ class _RaycastBackend:
         """What the backend keeps of a scene model, made again whenever what it is made from
         changes: a model may show and park geoms by group (ObjectStage does), or move static
         geoms."""
-        inputs = _shortcut_inputs(model)
         cached = self._scenes.get(model)
+        if cached is None:
+            views = _shortcut_input_views(model)
+            inputs = _snapshot(views)
+        else:
+            views, inputs = cached.views, _snapshot(cached.views)
         if cached is None or cached.inputs != inputs:
             seen = _ray_visible(model, self._geomgroup)
             shortcut = _TableShortcut.for_scene(model, data, seen)
-            cached = self._scenes[model] = _SceneCache(inputs, seen, shortcut)
+            cached = self._scenes[model] = _SceneCache(views, inputs, seen, shortcut)
         return cached
 
     def close(self) -> None:
