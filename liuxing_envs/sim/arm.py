@@ -22,7 +22,7 @@ Two ways to move, both collision-checked and reporting the same :class:`MotionRe
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
@@ -111,6 +111,13 @@ class _CollisionScene:
     data: mujoco.MjData
     qpos_at: slice | np.ndarray
     is_arm_geom: np.ndarray
+    #: Site ids in this model, by name, looked up on first use.
+    site_ids: dict[str, int] = field(default_factory=dict)
+
+    def site_id(self, site: str) -> int:
+        if site not in self.site_ids:
+            self.site_ids[site] = _require_id(self.model, mujoco.mjtObj.mjOBJ_SITE, site)
+        return self.site_ids[site]
 
 
 @dataclass(frozen=True)
@@ -206,7 +213,11 @@ class Arm:
             model, self._scratch, self._qpos_at, self._is_arm_geom
         )
         self._collisions = self._live_collisions
+        # Other collision scenes by (model, data) identity: an env switches between a few
+        # stand-ins every reset, and making one (its arm-geom mask) costs ~0.1 ms.
+        self._scene_cache: dict[tuple[int, int], _CollisionScene] = {}
         self._site_ids: dict[str, int] = {}
+        self._site_names: dict[int, str] = {}
         self._flange_in_site: dict[int, np.ndarray | None] = {}
         last_link = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, LAST_LINK_BODY)
         self._last_link_bodies = set(_subtree(model, last_link).tolist())
@@ -238,6 +249,7 @@ class Arm:
     def site_id(self, site: str) -> int:
         if site not in self._site_ids:
             self._site_ids[site] = _require_id(self.model, mujoco.mjtObj.mjOBJ_SITE, site)
+            self._site_names[self._site_ids[site]] = site
         return self._site_ids[site]
 
     def site_pose(self, site: str = WRIST_CAMERA_SITE, qpos: np.ndarray | None = None):
@@ -264,13 +276,19 @@ class Arm:
             return
         if data is None or data.qpos.shape != (model.nq,):
             raise ValueError("use_collision_scene needs the model's own MjData")
-        joints = _arm_joint_ids(model)
-        self._collisions = _CollisionScene(
-            model,
-            data,
-            _qpos_writer(model.jnt_qposadr[joints]),
-            _arm_geom_mask(model),
-        )
+        key = (id(model), id(data))
+        scene = self._scene_cache.get(key)
+        # The cached scene holds its model and data, so their ids cannot be reused meanwhile;
+        # what it derives from them (joint addresses, the arm's geoms) is fixed at compile time.
+        if scene is None or scene.model is not model or scene.data is not data:
+            joints = _arm_joint_ids(model)
+            scene = self._scene_cache[key] = _CollisionScene(
+                model,
+                data,
+                _qpos_writer(model.jnt_qposadr[joints]),
+                _arm_geom_mask(model),
+            )
+        self._collisions = scene
 
     def collisions(self, qpos: np.ndarray | None = None) -> tuple[Contact, ...]:
         """Contacts of the arm (with itself or the world) at ``qpos`` (default: now).
@@ -447,8 +465,10 @@ class Arm:
 
     def _solve_analytic(self, target_p, target_r, sid, roll_free, reference, check_collisions):
         roll = _ROLLS if roll_free else _NO_ROLL
-        site_poses = np.repeat(_homogeneous(target_p, target_r)[None], len(roll), axis=0)
+        site_poses = np.empty((len(roll), 4, 4))
         site_poses[:, :3, :3] = target_r @ roll  # turning about the site's own z keeps z
+        site_poses[:, :3, 3] = target_p
+        site_poses[:, 3] = _HOMOGENEOUS_ROW
         flange_in_base = self._base_inverse @ site_poses @ self._flange_from_site(sid)
         solutions, valid = ur_ik(flange_in_base)
         candidates = solutions[valid]
@@ -459,7 +479,9 @@ class Arm:
             candidates = np.where(inside, shifted, candidates)
             within = (candidates >= self.lower) & (candidates <= self.upper)
             candidates = candidates[within.all(axis=1)]
-        order = np.argsort(np.linalg.norm(candidates - reference, axis=1))
+        # np.linalg.norm(axis=1) spelled out (the same sums): it is hot and costs ~10 us.
+        offsets = candidates - reference
+        order = np.argsort(np.sqrt(np.add.reduce(offsets * offsets, axis=1)))
         tried, colliding = 0, None
         for index in order:
             q = candidates[index]
@@ -475,7 +497,12 @@ class Arm:
         return IKResult(False, reference.copy(), np.inf, np.inf, 0, tried, False)
 
     def _ik_result(self, success, q, sid, target_p, target_r, roll_free, attempts, colliding):
-        d = self._pose_scratch(q)
+        # The collision scene holds the same arm, so its kinematics give the same site pose;
+        # a stand-in (see use_collision_scene) computes them for a fraction of the bodies.
+        scene = self._collisions
+        d = self._posed_for_collisions(q)
+        if scene is not self._live_collisions:
+            sid = scene.site_id(self._site_names[sid])
         pos_err = float(np.linalg.norm(target_p - d.site_xpos[sid]))
         rotvec = _rotation_error(d.site_xmat[sid].reshape(3, 3), target_r, roll_free)
         return IKResult(
@@ -775,6 +802,7 @@ def _as_rotation(value) -> np.ndarray:
 
 
 _IDENTITY3 = np.eye(3)
+_HOMOGENEOUS_ROW = np.array([0.0, 0.0, 0.0, 1.0])
 #: np.allclose's tolerance against the identity: atol + rtol * |I| (rtol = 1e-5).
 _ORTHONORMAL_TOLERANCE = 1e-6 + 1e-5 * _IDENTITY3
 
