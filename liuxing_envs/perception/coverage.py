@@ -107,8 +107,18 @@ class CoverageTracker:
         self.num_observable = num_observable
         self.method: CoverageMethod = method
         self._eps2 = epsilon * epsilon
+        # Internally the samples are numbered in grid-cell order (the grid method; identity
+        # for kdtree): the samples one cell registers then lie in a few short runs of memory,
+        # which an update gathers from a cold cache several times faster than scattered ones.
+        # Every internal array (and _done) is in this order; `covered` maps it back.
+        self._order = self._cell_order(samples, observable) if method == "grid" else None
+        if self._order is None:
+            self._inner_samples, self._inner_observable = samples, observable
+        else:
+            self._inner_samples = samples[self._order]
+            self._inner_observable = observable[self._order]
         # Coordinate-major copy: 1-D gathers per coordinate are much cheaper than 2-D ones.
-        self._samples_t = np.ascontiguousarray(samples.T)
+        self._samples_t = np.ascontiguousarray(self._inner_samples.T)
         if method == "grid":
             self._build_grid()
         self.reset()
@@ -118,16 +128,21 @@ class CoverageTracker:
     def reset(self) -> None:
         """Mark every sample uncovered again (same samples, same set-up)."""
         # Non-observable samples start "covered" so no method ever tests or counts them.
-        self._done = ~self.observable
+        self._done = ~self._inner_observable
         self._num_done = self.samples.shape[0] - self.num_observable
         self._num_covered = 0
         # kdtree: indices of the observable samples still uncovered, compacted as they go.
-        self._remaining = np.flatnonzero(self.observable)
+        self._remaining = np.flatnonzero(self._inner_observable)
 
     @property
     def covered(self) -> np.ndarray:
         """``(N,)`` boolean mask of the observable samples covered so far (a copy)."""
-        return self._done & self.observable
+        covered = self._done & self._inner_observable
+        if self._order is None:
+            return covered
+        in_order = np.empty_like(covered)
+        in_order[self._order] = covered
+        return in_order
 
     @property
     def num_covered(self) -> int:
@@ -175,16 +190,26 @@ class CoverageTracker:
 
     # -- grid method -------------------------------------------------------------------------
 
+    def _grid_origin(self, observed: np.ndarray) -> np.ndarray:
+        # Samples start at cell 1 (not exactly on a boundary, where rounding could give 0),
+        # so every neighbour cell of a sample has an index >= 0.
+        cell = self.epsilon * _CELL_INFLATION
+        return observed.min(axis=0) - 1.5 * cell
+
+    def _cell_order(self, samples: np.ndarray, observable: np.ndarray) -> np.ndarray:
+        """The samples' indices sorted by the grid cell they lie in (x, then y, then z)."""
+        cell = self.epsilon * _CELL_INFLATION
+        cells = np.floor((samples - self._grid_origin(samples[observable])) / cell)
+        return np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0]))
+
     def _build_grid(self) -> None:
         eps = self.epsilon
         # Cells a hair larger than epsilon: a point within epsilon of a sample is then in a
         # neighbour cell of it even when rounding moves a coordinate across a cell boundary.
         cell = self._cell = eps * _CELL_INFLATION
-        ids = np.flatnonzero(self.observable)
-        observed = self.samples[ids]
-        # Samples start at cell 1 (not exactly on a boundary, where rounding could give 0),
-        # so every neighbour cell of a sample has an index >= 0.
-        self._origin = observed.min(axis=0) - 1.5 * cell
+        ids = np.flatnonzero(self._inner_observable)
+        observed = self._inner_samples[ids]
+        self._origin = self._grid_origin(observed)
         scaled = (observed - self._origin) / cell
         cells = np.floor(scaled).astype(np.int64)
         dims = cells.max(axis=0) + 2
@@ -223,7 +248,9 @@ class CoverageTracker:
         starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
         self._cell_keys = keys[starts]
         self._cell_ptr = np.append(starts, keys.size)
-        self._cell_samples = ids[rows]
+        # The narrowest integers that hold a sample index: a quarter of the memory to gather.
+        narrow = np.int16 if self.samples.shape[0] <= np.iinfo(np.int16).max else np.int32
+        self._cell_samples = ids[rows].astype(narrow)
 
     def _hits_grid(self, points: np.ndarray) -> np.ndarray:
         pt = np.ascontiguousarray(points.T)
@@ -261,7 +288,7 @@ class CoverageTracker:
         # arithmetic is in place.
         entry = np.repeat(begin - (ends - lengths), lengths)
         entry += np.arange(total)
-        pair_sample = self._cell_samples.take(entry)
+        pair_sample = self._cell_samples.take(entry).astype(np.intp)
         pair_point = np.repeat(point, lengths)
         todo = self._done.take(pair_sample)
         np.logical_not(todo, out=todo)
@@ -297,7 +324,7 @@ class CoverageTracker:
         candidates = remaining[near]
         if candidates.size == 0:
             return candidates
-        cand = self.samples[candidates]
+        cand = self._inner_samples[candidates]
         # Points farther than epsilon from every candidate's box cannot cover any of them.
         clow = cand.min(axis=0) - eps
         chigh = cand.max(axis=0) + eps
