@@ -30,7 +30,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
 
 #: The envs' splits, written out so --help needs no env import (a test keeps them in step).
-OBJECT_SPLITS = ("train", "validation", "held_out", "all")
+OBJECT_SPLITS = ("train", "validation", "held_out", "all", "procedural")
 INSTRUMENT_SPLITS = ("train", "held_out", "all")
 
 

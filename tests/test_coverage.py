@@ -137,6 +137,26 @@ def test_preview_predicts_the_gain_without_recording_it(method):
 
 
 @pytest.mark.parametrize("method", COVERAGE_METHODS)
+def test_fresh_trackers_share_the_set_up_but_not_what_they_covered(method):
+    rng = np.random.default_rng(8)
+    samples = sphere(rng, 2000)
+    observable = rng.random(2000) < 0.9
+    original = CoverageTracker(samples, 0.004, observable, method=method)
+    original.update(view(rng, 800))
+    first, second = original.fresh(), original.fresh()
+    alone = CoverageTracker(samples, 0.004, observable, method=method)
+    assert first.coverage == 0.0 and original.coverage > 0.0
+    for _ in range(3):  # interleaved scans, each as if it had its tracker to itself
+        a, b = view(rng, 500), view(rng, 500)
+        assert first.update(a) == alone.update(a)
+        second.update(b)
+        assert np.array_equal(first.covered, alone.covered)
+    assert not np.array_equal(first.covered, second.covered)
+    if method == "grid":
+        assert first._cell_samples is original._cell_samples  # one grid in memory
+
+
+@pytest.mark.parametrize("method", COVERAGE_METHODS)
 def test_non_observable_samples_never_count(method):
     rng = np.random.default_rng(2)
     samples = sphere(rng, 1000)

@@ -11,9 +11,13 @@ from liuxing_envs.sim.objects import (
     DEFAULT_OBSERVATION_RADIUS,
     OBJECT_NAMES,
     OBJECT_SETS,
+    PROCEDURAL_SET_SIZE,
+    PROCEDURAL_SIZE_RANGE,
     ObjectMesh,
+    _make_procedural,
     default_observation_viewpoints,
     get_object,
+    is_object_name,
     load_mesh_file,
     observable_mask,
     observable_samples,
@@ -54,10 +58,8 @@ def test_library_has_the_required_families():
     assert len(OBJECT_NAMES) >= 16 and len(set(OBJECT_NAMES)) == len(OBJECT_NAMES)
 
 
-@pytest.mark.parametrize("name", OBJECT_NAMES)
-def test_every_object_is_a_union_of_closed_outward_parts(name):
-    mesh = get_object(name)
-    assert mesh.name == name
+def _assert_union_of_closed_outward_parts(mesh: ObjectMesh) -> None:
+    name = mesh.name
     assert mesh.vertices.dtype == np.float64 and mesh.vertices.shape[1] == 3
     assert mesh.faces.dtype == np.int32 and mesh.faces.shape[1] == 3
     assert len(mesh.faces) <= 4000
@@ -77,6 +79,22 @@ def test_every_object_is_a_union_of_closed_outward_parts(name):
         faces = mesh.faces[mesh.part_ids == part]
         assert _legacy(mesh.vertices, faces).is_watertight(), f"{name} part {part}"
         assert _signed_volume(mesh.vertices, faces) > 0, f"{name} part {part}"
+
+
+def _assert_resting_centred(mesh: ObjectMesh) -> None:
+    assert mesh.vertices[:, 2].min() == 0.0
+    low, high = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    np.testing.assert_allclose((low + high)[:2] / 2, 0.0, atol=1e-12)
+    np.testing.assert_allclose(mesh.extents, high - low)
+    assert mesh.diagonal == pytest.approx(np.linalg.norm(high - low))
+    assert mesh.area == pytest.approx(mesh.to_open3d().get_surface_area())
+
+
+@pytest.mark.parametrize("name", OBJECT_NAMES)
+def test_every_object_is_a_union_of_closed_outward_parts(name):
+    mesh = get_object(name)
+    assert mesh.name == name
+    _assert_union_of_closed_outward_parts(mesh)
     assert (mesh.part_ids.max() > 0) == (name in MULTI_PART)
 
 
@@ -84,12 +102,7 @@ def test_every_object_is_a_union_of_closed_outward_parts(name):
 def test_every_object_rests_on_the_table_centred_at_tabletop_size(name):
     mesh = get_object(name)
     assert 0.08 <= mesh.extents.max() <= 0.20
-    assert mesh.vertices[:, 2].min() == 0.0
-    low, high = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-    np.testing.assert_allclose((low + high)[:2] / 2, 0.0, atol=1e-12)
-    np.testing.assert_allclose(mesh.extents, high - low)
-    assert mesh.diagonal == pytest.approx(np.linalg.norm(high - low))
-    assert mesh.area == pytest.approx(mesh.to_open3d().get_surface_area())
+    _assert_resting_centred(mesh)
 
 
 def test_objects_are_distinct_shapes_even_up_to_scale():
@@ -136,6 +149,60 @@ def test_get_object_caches_and_rejects_unknown_names():
     assert get_object("mug") is get_object("mug")
     with pytest.raises(ValueError, match="unknown object 'teapot'.*box.*mug"):
         get_object("teapot")
+
+
+# --- procedural shapes -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", OBJECT_SETS["procedural"])
+def test_every_procedural_shape_is_a_tabletop_union_of_closed_parts(name):
+    mesh = get_object(name)
+    assert mesh.name == name
+    _assert_union_of_closed_outward_parts(mesh)
+    _assert_resting_centred(mesh)
+    low, high = PROCEDURAL_SIZE_RANGE
+    assert low - 1e-12 <= mesh.extents.max() <= high + 1e-12
+
+
+def test_procedural_shapes_are_seeded_distinct_and_apart_from_the_library():
+    names = OBJECT_SETS["procedural"]
+    assert len(names) == PROCEDURAL_SET_SIZE == len(set(names))
+    assert not set(names) & set(OBJECT_SETS["all"])  # "all" is the library's families
+    # Built fresh (bypassing the cache), a shape is the same on every build and machine.
+    assert _make_procedural(7) == get_object("procedural_7")
+    # Any index names a shape, beyond the set too; the set is many shapes, not a few.
+    assert get_object("procedural_5000").name == "procedural_5000"
+    digests = {get_object(name).digest for name in names}
+    assert len(digests) == len(names)
+    part_counts = {int(get_object(name).part_ids.max()) + 1 for name in names}
+    assert {1, 2, 3} <= part_counts
+    # Shapes, not rescalings: their scale-free proportions spread widely.
+    ratios = np.array([np.sort(get_object(n).extents) / get_object(n).extents.max() for n in names])
+    assert ratios[:, 0].std() > 0.1 and ratios[:, 1].std() > 0.1
+
+
+@pytest.mark.parametrize(
+    "bad", ["procedural_", "procedural_01", "procedural_-1", "procedural_x", "procedural_1.5"]
+)
+def test_malformed_procedural_names_are_refused(bad):
+    assert not is_object_name(bad)
+    with pytest.raises(ValueError, match=f"unknown object '{bad}'.*procedural_<n>"):
+        get_object(bad)
+
+
+def test_procedural_shapes_compile_and_are_mostly_observable():
+    spec = mujoco.MjSpec()
+    names = OBJECT_SETS["procedural"]
+    for name in names:
+        mesh = get_object(name)
+        spec.add_mesh(name=name, uservert=mesh.vertices.ravel(), userface=mesh.faces.ravel())
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name)
+    assert spec.compile().nmesh == len(names)
+    for name in names[:8]:
+        points, normals, observable = observable_samples(name, 1.2, 512)
+        assert 0.5 < observable.mean() < 1.0, name
+        resting = (points[:, 2] < 1e-9) & (normals[:, 2] < -0.99)
+        assert not observable[resting].any(), name
 
 
 def test_object_mesh_is_immutable_and_compares_by_content():

@@ -148,6 +148,33 @@ def test_user_meshes_load(tmp_path):
         ViewPlanningEnv(objects=[str(tmp_path / "missing.obj")])
 
 
+def test_procedural_shapes_are_scanned_like_library_objects():
+    names = ["procedural_3", "procedural_40", "box"]
+    env = ViewPlanningEnv(objects=names, scales=(1.0,), coverage_samples=1024)
+    env.action_space.seed(0)
+    seen = set()
+    for seed in range(6):
+        obs, info = env.reset(seed=seed)
+        seen.add(info["object"])
+        obs, reward, _, _, info = env.step(env.action_space.sample())
+        assert env.observation_space.contains(obs) and info["coverage"] > 0.1
+    assert seen <= set(names) and len(seen) >= 2
+    env.close()
+    with pytest.raises(FileNotFoundError, match="procedural_<n>"):
+        ViewPlanningEnv(objects=["procedural_03"])
+
+
+@pytest.mark.slow
+def test_the_procedural_set_is_its_64_shapes():
+    from liuxing_envs.sim.objects import OBJECT_SETS
+
+    env = ViewPlanningEnv(object_set="procedural", scales=(1.0,), coverage_samples=512)
+    assert env.object_names == OBJECT_SETS["procedural"] and len(env.object_names) == 64
+    _, info = env.reset(seed=0)
+    assert info["object"].startswith("procedural_")
+    env.close()
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
+from functools import lru_cache
 from pathlib import Path
 
 import gymnasium as gym
@@ -42,7 +43,10 @@ from liuxing_envs.sim.camera import (
 from liuxing_envs.sim.object_stage import ObjectStage, PlacedObject
 from liuxing_envs.sim.objects import (
     OBJECT_SETS,
+    OBSERVABLE_CACHE_SIZE,
+    PROCEDURAL_PREFIX,
     get_object,
+    is_object_name,
     load_mesh_file,
     observable_samples,
     surface_samples,
@@ -207,10 +211,13 @@ class ViewPlanningEnv(gym.Env):
     bounding-box diagonal.
 
     **Arguments** (all keyword): ``view_budget``, ``action_mode``, ``motion``
-    ({"kinematic", "dynamic"}), ``object_set`` ({"train", "validation", "held_out", "all"};
-    validation families are for choosing a model, held-out ones for reporting it), ``objects``
-    (list of library names or mesh files .obj/.stl/.ply, scaled to ``USER_MESH_SIZE``; overrides
-    ``object_set``), ``scales``, ``object_region``, ``resolution`` (square depth image side),
+    ({"kinematic", "dynamic"}), ``object_set`` ({"train", "validation", "held_out", "all",
+    "procedural"}; validation families are for choosing a model, held-out ones for reporting
+    it; "all" is the library's 22 families; "procedural" is 64 seeded random composites of the
+    train families' parts, a larger training set, see ``liuxing_envs.sim.objects``),
+    ``objects`` (list of library names, ``procedural_<n>`` shape names (any n >= 0) or mesh
+    files .obj/.stl/.ply, scaled to ``USER_MESH_SIZE``; overrides ``object_set``), ``scales``,
+    ``object_region``, ``resolution`` (square depth image side),
     ``depth_backend`` ({"auto", "gl", "raycast", "embree"}; embree is the fastest, see
     ``liuxing_envs.sim.camera``), ``depth_noise`` (a ``DepthNoise`` or None),
     the action ranges above, ``coverage_samples``, ``epsilon_fraction``, ``success_coverage``,
@@ -231,7 +238,9 @@ class ViewPlanningEnv(gym.Env):
     and depth disagreed) and ``reachable`` means a path was found; ``preview_view`` restores
     the dynamic state exactly; the history's radius feature stays in [0, 1] with a
     ``discrete_radius`` outside ``radius_range``; the env can be reset after ``close()``.
-    Added within v0 (2026-11-23): ``depth_backend="embree"``.
+    Added within v0 (2026-11-23): ``depth_backend="embree"``. Added within v0 (2026-11-25):
+    ``object_set="procedural"`` and ``procedural_<n>`` object names (the other sets are
+    unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -367,8 +376,9 @@ class ViewPlanningEnv(gym.Env):
             for scale in self.scales
         }
         # One tracker per variant, in the object's frame, reset per episode: its lookup grid
-        # costs milliseconds to build, a reset microseconds. All are built here, next to the
-        # ground truth they index (~3 ms each), so no reset pays for one.
+        # costs milliseconds to build, a reset microseconds. All are made here, next to the
+        # ground truth they index (~3 ms each, once per process: envs share the grids), so
+        # no reset pays for one.
         self._trackers: dict[tuple[str, float], CoverageTracker] = {}
         for name, scale in self._ground_truth:
             self._tracker(name, scale)
@@ -668,11 +678,10 @@ class ViewPlanningEnv(gym.Env):
     def _tracker(self, name: str, scale: float) -> CoverageTracker:
         key = (name, scale)
         if key not in self._trackers:
-            truth = self._ground_truth[key]
-            epsilon = self.epsilon_fraction * scale * self._stage.meshes[name].diagonal
-            self._trackers[key] = CoverageTracker(
-                truth.points, epsilon, observable=truth.observable
+            shared = _shared_tracker(
+                self._stage.meshes[name], scale, self.coverage_samples, self.epsilon_fraction
             )
+            self._trackers[key] = shared.fresh()
         return self._trackers[key]
 
     def view_to_action(self, azimuth: float, elevation: float, radius: float) -> np.ndarray:
@@ -863,6 +872,16 @@ class _StandIn:
         return d
 
 
+@lru_cache(maxsize=OBSERVABLE_CACHE_SIZE)
+def _shared_tracker(mesh, scale: float, count: int, epsilon_fraction: float) -> CoverageTracker:
+    """The coverage set-up of one variant, shared by every env of a process (each scans with
+    its own :meth:`CoverageTracker.fresh` copy): its lookup grid costs milliseconds and
+    about a megabyte, which a vectorised env would otherwise pay per env and variant."""
+    truth = observable_samples(mesh, scale, count)
+    epsilon = epsilon_fraction * scale * mesh.diagonal
+    return CoverageTracker(truth.points, epsilon, observable=truth.observable)
+
+
 def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
     if objects is None:
         return [get_object(name) for name in OBJECT_SETS[object_set]]
@@ -877,7 +896,7 @@ def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
         raise ValueError(f"{expected}, got {objects!r}")
     meshes = []
     for item in items:
-        if str(item) in OBJECT_SETS["all"]:
+        if is_object_name(str(item)):
             meshes.append(get_object(str(item)))
             continue
         try:
@@ -885,7 +904,8 @@ def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
         except (OSError, ValueError) as error:
             raise type(error)(
                 f"objects: {str(item)!r} is not a library object "
-                f"({', '.join(OBJECT_SETS['all'])}), and as a mesh file: {error}"
+                f"({', '.join(OBJECT_SETS['all'])}) or a procedural shape "
+                f"({PROCEDURAL_PREFIX}<n>), and as a mesh file: {error}"
             ) from error
     return meshes
 

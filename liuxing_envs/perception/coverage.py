@@ -25,6 +25,7 @@ Two exact methods give the same answer:
 
 from __future__ import annotations
 
+import copy
 from typing import Literal
 
 import numpy as np
@@ -127,12 +128,22 @@ class CoverageTracker:
 
     def reset(self) -> None:
         """Mark every sample uncovered again (same samples, same set-up)."""
+        # Every piece of per-scan state is created here (updates change only what this made):
+        # fresh() relies on it to share everything else between trackers.
         # Non-observable samples start "covered" so no method ever tests or counts them.
         self._done = ~self._inner_observable
         self._num_done = self.samples.shape[0] - self.num_observable
         self._num_covered = 0
         # kdtree: indices of the observable samples still uncovered, compacted as they go.
         self._remaining = np.flatnonzero(self._inner_observable)
+
+    def fresh(self) -> CoverageTracker:
+        """A tracker of the same samples with nothing covered, sharing this one's read-only
+        set-up (samples, lookup grid): no set-up cost and no second copy of the grid, for
+        several scans of one object at a time (e.g. vectorised environments)."""
+        tracker = copy.copy(self)
+        tracker.reset()
+        return tracker
 
     @property
     def covered(self) -> np.ndarray:

@@ -30,6 +30,7 @@ import open3d as o3d
 from scipy.interpolate import PchipInterpolator
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import ConvexHull
 
 __all__ = [
     "DEFAULT_OBSERVATION_AZIMUTH_COUNT",
@@ -43,8 +44,12 @@ __all__ = [
     "OBJECT_SETS",
     "ObjectMesh",
     "ObservableSamples",
+    "PROCEDURAL_PREFIX",
+    "PROCEDURAL_SET_SIZE",
+    "PROCEDURAL_SIZE_RANGE",
     "default_observation_viewpoints",
     "get_object",
+    "is_object_name",
     "load_mesh_file",
     "observable_mask",
     "observable_samples",
@@ -87,14 +92,24 @@ DEFAULT_TABLE_HALF_SIZE = 10.0
 DEFAULT_TABLE_THICKNESS = 0.02
 
 #: Cached (object, scale, ...) ground truths; the environment uses a handful of scales for
-#: each of ~22 objects, each entry ~0.4 MB at 8192 samples.
-OBSERVABLE_CACHE_SIZE = 128
+#: each of its objects (22 in the library, 64 in the procedural set), each entry ~0.2 MB at
+#: 8192 samples (the scale-free samples another ~0.4 MB per object).
+OBSERVABLE_CACHE_SIZE = 512
 
 # Library tessellation.
 _SEGMENTS = 48  # around a surface of revolution
 _TUBE_SEGMENTS = 16  # around a swept tube (mug handle)
 #: Seed of the bunny-like blob's noise: fixed, so the object is the same in every run.
 BLOB_SEED = 7
+
+#: ``procedural_<n>`` (n = 0, 1, 2, ...) names shape n of an endless seeded sequence of random
+#: composites, the same on every machine; ``OBJECT_SETS["procedural"]`` holds the first
+#: PROCEDURAL_SET_SIZE. They are a training set: many shapes from the train families' parts.
+PROCEDURAL_PREFIX = "procedural_"
+PROCEDURAL_SET_SIZE = 64
+PROCEDURAL_SEED = 1125
+#: Largest bounding-box side of a procedural shape (m), drawn uniformly: the library's span.
+PROCEDURAL_SIZE_RANGE = (0.10, 0.18)
 
 
 # --- the mesh type ---------------------------------------------------------------------------
@@ -597,21 +612,27 @@ def _make_t_pipe() -> ObjectMesh:
     )
 
 
-def _make_bunny() -> ObjectMesh:
-    # Smooth seeded noise on a sphere: radius 1 + a sum of von Mises bumps (smooth, star-
-    # shaped, so the surface cannot fold), stretched like a crouching animal, bottom cut flat
-    # so it stands on the table.
-    rng = np.random.default_rng(BLOB_SEED)
-    bumps = 16
+def _bumpy_sphere(
+    rng: np.random.Generator, bumps: int, rings: int, segments: int = _SEGMENTS
+) -> Part:
+    """Smooth seeded noise on a unit sphere: radius 1 + a sum of von Mises bumps (smooth and
+    star-shaped, so the surface cannot fold), ``rings`` polar rings of ``segments`` points."""
     centres = rng.normal(size=(bumps, 3))
     centres /= np.linalg.norm(centres, axis=1, keepdims=True)
     amplitudes = rng.uniform(0.1, 0.3, bumps) * rng.choice([-1.0, 1.0], bumps, p=[0.3, 0.7])
     sharpness = rng.uniform(4.0, 12.0, bumps)
-    polar = np.linspace(-np.pi / 2, np.pi / 2, 26)
-    vertices, faces = _revolve(np.column_stack([np.cos(polar), np.sin(polar)]).round(12))
+    polar = np.linspace(-np.pi / 2, np.pi / 2, rings)
+    vertices, faces = _revolve(np.column_stack([np.cos(polar), np.sin(polar)]).round(12), segments)
     directions = vertices / np.linalg.norm(vertices, axis=1, keepdims=True)
     radius = 1.0 + np.exp(sharpness * (directions @ centres.T - 1.0)) @ amplitudes
-    vertices = directions * radius[:, None] * [0.075, 0.055, 0.06]
+    return directions * radius[:, None], faces
+
+
+def _make_bunny() -> ObjectMesh:
+    # A bumpy sphere stretched like a crouching animal, bottom cut flat so it stands on the
+    # table.
+    vertices, faces = _bumpy_sphere(np.random.default_rng(BLOB_SEED), 16, 26)
+    vertices = vertices * [0.075, 0.055, 0.06]
     floor = vertices[:, 2].min() + 0.012
     vertices[:, 2] = np.maximum(vertices[:, 2], floor)
     return _assemble("bunny", [(vertices, faces)])
@@ -718,19 +739,150 @@ OBJECT_SETS: dict[str, tuple[str, ...]] = {
     "validation": _VALIDATION,
     "held_out": _HELD_OUT,
     "all": OBJECT_NAMES,
+    # Not in "all", which is the library's families.
+    "procedural": tuple(f"{PROCEDURAL_PREFIX}{n}" for n in range(PROCEDURAL_SET_SIZE)),
 }
 
 
+def is_object_name(name: str) -> bool:
+    """Whether ``name`` names a library object or a procedural shape (``procedural_<n>``)."""
+    return name in _BUILDERS or _procedural_index(name) is not None
+
+
 def get_object(name: str) -> ObjectMesh:
-    """The library object ``name`` (built once, then cached)."""
-    if name not in _BUILDERS:
-        raise ValueError(f"unknown object {name!r}; library objects: {', '.join(OBJECT_NAMES)}")
+    """The library object or procedural shape ``name`` (built once, then cached)."""
+    if not is_object_name(name):
+        raise ValueError(
+            f"unknown object {name!r}; library objects: {', '.join(OBJECT_NAMES)}, or "
+            f"{PROCEDURAL_PREFIX}<n> for procedural shape n (n = 0, 1, 2, ...)"
+        )
     return _build_object(name)
 
 
 @cache
 def _build_object(name: str) -> ObjectMesh:
-    return _BUILDERS[name]()
+    if name in _BUILDERS:
+        return _BUILDERS[name]()
+    return _make_procedural(_procedural_index(name))
+
+
+# --- procedural shapes -----------------------------------------------------------------------
+# Random composites of one to five parts of the kinds the train families are made of (boxes,
+# cylinders, frusta and pyramids, convex and L-shaped prisms, cups, blobs), standing side by
+# side or stacked, one part on one support. Never rings, tubes, tunnels, channels or legs:
+# the held-out and validation families stay unseen, so training on these measures
+# generalisation from more shapes, not from the test families.
+
+_PROCEDURAL_NAME_DIGITS = 6
+_STACK_SINK = 0.002  # a stacked part sinks this deep into its support: no coincident faces
+_CUP_WALL, _CUP_BOTTOM = 0.004, 0.005
+
+
+class _Support(NamedTuple):
+    """A flat top another part can stand on: a disc of radius ``half`` at height ``top``."""
+
+    x: float
+    y: float
+    half: float
+    top: float
+
+
+def _procedural_index(name: str) -> int | None:
+    if not isinstance(name, str) or not name.startswith(PROCEDURAL_PREFIX):
+        return None
+    digits = name[len(PROCEDURAL_PREFIX) :]
+    if not digits.isdecimal() or not digits.isascii() or len(digits) > _PROCEDURAL_NAME_DIGITS:
+        return None
+    if digits != str(int(digits)):  # one name per shape: no leading zeros
+        return None
+    return int(digits)
+
+
+def _random_part(rng: np.random.Generator, half: float) -> tuple[Part, float | None]:
+    """One part standing on z = 0 around the z axis, about ``half`` m in footprint radius,
+    and the radius of the flat disc on its top (None where nothing can stand on it)."""
+    kind = rng.choice(["box", "revolved", "prism", "l_prism", "cup", "blob"])
+    height = rng.uniform(0.02, 0.11)
+    yaw = rng.uniform(0.0, np.pi)
+    if kind == "box":
+        sx, sy = 2 * half * rng.uniform(0.35, 1.0, 2)
+        return _box((sx, sy, height), (0.0, 0.0, height / 2), yaw), min(sx, sy) / 2
+    if kind == "revolved":  # cylinder, frustum or cone; round or a 4- or 6-sided pyramid
+        segments = int(rng.choice([32, 4, 6]))
+        bottom = half * rng.uniform(0.5, 1.0)
+        top = bottom * rng.choice([1.0, rng.uniform(0.3, 0.9), 0.0])
+        if top == 0.0:
+            return _revolve([(0, 0), (bottom, 0), (0, height)], segments, phase=yaw), None
+        part = _revolve([(0, 0), (bottom, 0), (top, height), (0, height)], segments, phase=yaw)
+        return part, top * np.cos(np.pi / segments)  # the top polygon's inscribed radius
+    if kind == "prism":  # a convex outline with a flat base, extruded
+        width = 2 * half * rng.uniform(0.5, 1.0)
+        tops = np.column_stack(
+            [rng.uniform(-width / 2, width / 2, 4), height * rng.uniform(0.3, 1.0, 4)]
+        )
+        outline = np.concatenate([[(-width / 2, 0.0), (width / 2, 0.0)], tops])
+        outline = outline[ConvexHull(outline).vertices]
+        part = _extrude(outline, 2 * half * rng.uniform(0.3, 1.0))
+        return _turned(part, yaw), None
+    if kind == "l_prism":
+        width = 2 * half * rng.uniform(0.6, 1.0)
+        thick = min(width, height) * rng.uniform(0.12, 0.3)
+        outline = [(0, 0), (width, 0), (width, thick), (thick, thick), (thick, height), (0, height)]
+        vertices, faces = _extrude(outline, 2 * half * rng.uniform(0.3, 1.0))
+        return _turned((vertices - [width / 2, 0.0, 0.0], faces), yaw), None
+    if kind == "cup":
+        radius = half * rng.uniform(0.5, 0.9)
+        rim = radius * rng.uniform(0.7, 1.1)
+        segments = int(rng.choice([32, 4]))
+        outer = np.array([(radius, 0.0), (rim, height)])
+        inner = np.array([(rim - _CUP_WALL, height), (radius - _CUP_WALL, _CUP_BOTTOM)])
+        return _revolve(_cup_profile(outer, inner), segments, phase=yaw), None
+    return _random_blob(rng, half, height), None
+
+
+def _random_blob(rng: np.random.Generator, half: float, height: float) -> Part:
+    """A smooth star-shaped lump (a bumpy sphere stretched to an ellipsoid), its bottom cut
+    flat."""
+    vertices, faces = _bumpy_sphere(rng, 8, 18, 24)
+    semi_axes = [half * rng.uniform(0.5, 1.0), half * rng.uniform(0.5, 1.0), height / 2]
+    vertices = vertices * semi_axes
+    floor = vertices[:, 2].min() + 0.2 * np.ptp(vertices[:, 2])
+    vertices[:, 2] = np.maximum(vertices[:, 2], floor) - floor
+    return vertices, faces
+
+
+def _turned(part: Part, yaw: float) -> Part:
+    c, s = np.cos(yaw), np.sin(yaw)
+    vertices, faces = part
+    return vertices @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]), faces
+
+
+def _make_procedural(index: int) -> ObjectMesh:
+    rng = np.random.default_rng([PROCEDURAL_SEED, index])
+    parts: list[Part] = []
+    supports: list[_Support] = []
+
+    def add(x: float, y: float, base: float, half: float) -> None:
+        (vertices, faces), flat = _random_part(rng, half)
+        parts.append((vertices + [x, y, base], faces))
+        if flat is not None and flat > 0.008:
+            supports.append(_Support(x, y, flat, base + float(vertices[:, 2].max())))
+
+    add(0.0, 0.0, 0.0, rng.uniform(0.03, 0.07))
+    for _ in range(rng.choice([0, 1, 2], p=[0.4, 0.4, 0.2])):  # more parts on the table
+        angle, reach = rng.uniform(0.0, 2 * np.pi), rng.uniform(0.03, 0.09)
+        add(reach * np.cos(angle), reach * np.sin(angle), 0.0, rng.uniform(0.02, 0.05))
+    for _ in range(rng.choice([0, 1, 2], p=[0.35, 0.45, 0.2])):  # parts stacked on a flat top
+        if not supports:
+            break
+        support = supports[rng.integers(len(supports))]
+        angle, reach = rng.uniform(0.0, 2 * np.pi), support.half * rng.uniform(0.0, 0.5)
+        x, y = support.x + reach * np.cos(angle), support.y + reach * np.sin(angle)
+        add(x, y, support.top - _STACK_SINK, support.half * rng.uniform(0.5, 1.4))
+    name = f"{PROCEDURAL_PREFIX}{index}"
+    mesh = _assemble(name, parts)
+    size = rng.uniform(*PROCEDURAL_SIZE_RANGE)
+    return ObjectMesh(name, mesh.vertices * (size / mesh.extents.max()), mesh.faces)
 
 
 # --- users' mesh files -----------------------------------------------------------------------
