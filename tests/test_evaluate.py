@@ -6,6 +6,7 @@ a tiny SAC run trained here (with observation normalisation), for a few episodes
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -196,7 +197,7 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         run = tmp_path / f"ppo_seed{seed}"
         shutil.copytree(SHIPPED_VIEW_POLICY, run)
         config = run / run_folder.CONFIG
-        config.write_text(config.read_text().replace("seed: 2\n", f"seed: {seed}\n", 1))
+        config.write_text(re.sub(r"(?m)^seed: \d+$", f"seed: {seed}", config.read_text(), count=1))
         runs.append(str(run))
     out = tmp_path / "report"
     run_script(
@@ -369,8 +370,7 @@ def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the
     config = run / run_folder.CONFIG
     config.write_text(
         config.read_text().replace(
-            "  action_mode: discrete\n",
-            "  action_mode: discrete\n  objects: [box, bench]\n  object_set: train\n",
+            "  object_set: procedural\n", "  objects: [box, bench]\n  object_set: train\n"
         )
     )
     contestants = build_contestants([str(run)], splits={"ViewPlanning-v0": "held_out"})
@@ -378,7 +378,7 @@ def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the
     for contestant in contestants:
         assert "objects" not in contestant.env_kwargs
         assert contestant.env_kwargs["object_set"] == "held_out"
-        assert contestant.env_kwargs["action_mode"] == "discrete"  # the run's other kwargs stay
+        assert contestant.env_kwargs["action_mode"] == "continuous"  # the run's other kwargs stay
     # A list given for this evaluation is used; the split is chosen by its own flag.
     chosen = build_contestants([str(run)], env_kwargs={"objects": ["arch"]}, baselines=[])
     assert chosen[0].env_kwargs["objects"] == ["arch"] and "object_set" not in chosen[0].env_kwargs

@@ -28,8 +28,13 @@ from tests.scripts import REPO, run_script
 
 # Small, fast settings shared by every end-to-end run.
 QUICK = ["--eval-episodes", "2", "--final-episodes", "2", "--no-progress-bar"]
+#: The library's train objects in place of the YAML's 64 procedural shapes (~1 min and ~4 GB
+#: to build the envs for): these runs test the harness, not what the policy learns from.
+TRAIN_OBJECTS = "object_set=train"
 QUICK_HYPERPARAMS = {
-    ("ViewPlanning-v0", "ppo"): ["n_steps=32", "batch_size=32", "n_epochs=2"],
+    ("ViewPlanning-v0", "ppo"): [
+        *("n_steps=32", "batch_size=32", "n_epochs=2", f"env_kwargs.{TRAIN_OBJECTS}"),
+    ],
     ("ViewPlanning-v0", "sac"): ["buffer_size=2000", "learning_starts=32", "batch_size=16"],
     ("InstrumentGrasp-v0", "ppo"): ["n_steps=64", "batch_size=64", "n_epochs=2"],
     # Without the YAML's 50 expert episodes and 5,000 cloning steps (minutes).
@@ -175,8 +180,9 @@ def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
 )
 def test_a_hyperparameter_sb3_refuses_leaves_no_run_folder(hyperparam, reason, tmp_path, capsys):
     run_dir = tmp_path / "run"
+    argv = ["--hyperparams", hyperparam, "--env-kwargs", TRAIN_OBJECTS, "--run-dir", str(run_dir)]
     with pytest.raises(SystemExit) as exit_info:
-        train.main(["--hyperparams", hyperparam, "--run-dir", str(run_dir)])
+        train.main(argv)
     assert exit_info.value.code == 2
     error = capsys.readouterr().err
     assert "train.py: error: PPO refused its hyper-parameters" in error and reason in error
@@ -196,6 +202,7 @@ def test_a_run_folder_that_is_a_file_is_refused(tmp_path, capsys):
 def test_eval_env_kwargs_that_change_the_spaces_are_refused_before_training(tmp_path, capsys):
     run_dir = tmp_path / "run"
     argv = ["--hyperparams", "eval_env_kwargs={view_budget: 6}", "--run-dir", str(run_dir)]
+    argv += ["--env-kwargs", TRAIN_OBJECTS]
     with pytest.raises(SystemExit) as exit_info:
         train.main(argv)
     assert exit_info.value.code == 2
@@ -235,7 +242,7 @@ def test_the_periodic_evaluation_can_choose_the_best_model_on_other_objects(tmp_
         hyperparams=parse_assignments(
             ["eval_env_kwargs={object_set: validation}"], "--hyperparams"
         ),
-        env_kwargs={"view_budget": 3},
+        env_kwargs={"view_budget": 3, "object_set": "train"},
     )
     training_env = make_env(config["env_id"], config["env_kwargs"])
     evaluation = PeriodicEvaluation(config, tmp_path, every=100)
