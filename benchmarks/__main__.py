@@ -576,10 +576,11 @@ def report(results: dict, command: str) -> str:
 def _time_to_beat(beat: dict) -> str:
     run = f"The default `python train.py` (PPO, ViewPlanning-v0, {beat['total_steps']} steps, "
     run += f"{beat['total_seconds']:.0f} s of learning)"
+    objects = beat.get("objects", "train")  # reports before the field trained on these
     against = (
         f"the four-view baseline's {beat['baseline_coverage']:.3f} mean coverage on the same "
-        f"{beat['eval_episodes']} periodic-evaluation episodes (train objects, evaluated every "
-        f"{beat['eval_freq']} steps)"
+        f"{beat['eval_episodes']} periodic-evaluation episodes ({objects} objects, evaluated "
+        f"every {beat['eval_freq']} steps)"
     )
     if beat["beaten_at_seconds"] is None:
         return f"{run} never beat {against}."

@@ -7,11 +7,12 @@ the run's ``timesteps / train_seconds`` from its ``result.json`` (learning only,
 SAC runs with ``learning_starts=0``, so every step pays for its gradient update as in the
 rest of a long run (the YAMLs' warm-ups of random steps would be a third of a short one).
 
-Time to beat: the default ``python train.py`` (PPO, ViewPlanning-v0), whose periodic
-evaluation replays the same seeded episodes every ``eval_freq`` steps. The four-view
-baseline plays those same episodes, and the time to beat is the first evaluation whose mean
-coverage exceeds the baseline's (``wall_seconds`` counts from the start of learning and
-includes the evaluations themselves).
+Time to beat: the first TIME_TO_BEAT_STEPS steps of the default ``python train.py`` (PPO,
+ViewPlanning-v0), whose periodic evaluation replays the same seeded episodes every
+``eval_freq`` steps on its training objects. The four-view baseline plays those same
+episodes, and the time to beat is the first evaluation whose mean coverage exceeds the
+baseline's (``wall_seconds`` counts from the start of learning and includes the evaluations
+themselves).
 """
 
 from __future__ import annotations
@@ -30,6 +31,9 @@ from benchmarks.isolated import REPO  # noqa: E402
 
 #: Periodic evaluation every this many steps in the time-to-beat run (the YAML's is 5000).
 EVAL_FREQ = 1000
+#: The time-to-beat run's length: the default run's first steps (it beat the baseline within
+#: 6,000 in every measurement), not its whole 80,000.
+TIME_TO_BEAT_STEPS = 20_000
 #: (env id, algorithm, env steps): enough for a few policy updates past learning_starts.
 RUNS = (
     ("ViewPlanning-v0", "ppo", 2048),
@@ -67,8 +71,8 @@ def throughput(env_id: str, algo: str, steps: int) -> dict:
 
 
 def time_to_beat_four_view(timesteps: int | None = None) -> dict:
-    """Train the default run (``timesteps`` overrides its length) and find its first periodic
-    evaluation above the baseline."""
+    """Train the default run for TIME_TO_BEAT_STEPS (or ``timesteps``, evaluated twice) and
+    find its first periodic evaluation above the baseline."""
     sys.path.insert(0, str(REPO))
     from agents.evaluation import make_env, run_episodes
     from agents.training import PERIODIC_EVAL_SEED_OFFSET
@@ -76,9 +80,10 @@ def time_to_beat_four_view(timesteps: int | None = None) -> dict:
 
     with tempfile.TemporaryDirectory() as folder:
         run_dir = Path(folder) / "run"
-        length = [] if timesteps is None else ["-n", str(timesteps)]
+        length = TIME_TO_BEAT_STEPS if timesteps is None else timesteps
         eval_freq = EVAL_FREQ if timesteps is None else max(1, timesteps // 2)
-        result = _train([*length, "--eval-freq", str(eval_freq), "--final-episodes", "0"], run_dir)
+        arguments = ["-n", str(length), "--eval-freq", str(eval_freq), "--final-episodes", "0"]
+        result = _train(arguments, run_dir)
         config = json.loads(json.dumps(_read_yaml(run_dir / "config.yml")))
         with open(run_dir / "evaluations.csv", newline="") as stream:
             history = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(stream)]
@@ -91,6 +96,7 @@ def time_to_beat_four_view(timesteps: int | None = None) -> dict:
     baseline = sum(e["coverage"] for e in episodes) / len(episodes)
     beaten = next((row for row in history if row["mean_metric"] > baseline), None)
     return {
+        "objects": config["env_kwargs"].get("object_set", "train"),
         "baseline_coverage": baseline,
         "eval_episodes": config["eval_episodes"],
         "eval_freq": config["eval_freq"],

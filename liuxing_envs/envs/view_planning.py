@@ -215,7 +215,7 @@ class ViewPlanningEnv(gym.Env):
     "procedural"}; validation families are for choosing a model, held-out ones for reporting
     it; "all" is the library's 22 families; "procedural" is 64 seeded random composites of the
     train families' parts, a larger training set, see ``liuxing_envs.sim.objects``),
-    ``objects`` (list of library names, ``procedural_<n>`` shape names (any n >= 0) or mesh
+    ``objects`` (list of library names, ``procedural_<n>`` shape names (n < 1,000,000) or mesh
     files .obj/.stl/.ply, scaled to ``USER_MESH_SIZE``; overrides ``object_set``), ``scales``,
     ``object_region``, ``resolution`` (square depth image side),
     ``depth_backend`` ({"auto", "gl", "raycast", "embree"}; embree is the fastest, see
@@ -885,7 +885,9 @@ def _shared_tracker(mesh, scale: float, count: int, epsilon_fraction: float) -> 
 def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
     if objects is None:
         return [get_object(name) for name in OBJECT_SETS[object_set]]
-    expected = "objects must be a non-empty list of library names or mesh file paths"
+    expected = (
+        "objects must be a non-empty list of library names, procedural_<n> names or mesh file paths"
+    )
     if isinstance(objects, str | os.PathLike):
         raise ValueError(f"{expected}, got the single {objects!r} (wrap it in a list)")
     try:

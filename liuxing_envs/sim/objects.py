@@ -102,9 +102,10 @@ _TUBE_SEGMENTS = 16  # around a swept tube (mug handle)
 #: Seed of the bunny-like blob's noise: fixed, so the object is the same in every run.
 BLOB_SEED = 7
 
-#: ``procedural_<n>`` (n = 0, 1, 2, ...) names shape n of an endless seeded sequence of random
-#: composites, the same on every machine; ``OBJECT_SETS["procedural"]`` holds the first
-#: PROCEDURAL_SET_SIZE. They are a training set: many shapes from the train families' parts.
+#: ``procedural_<n>`` (n = 0 to 999,999) names shape n of a seeded sequence of random
+#: composites, the same shape on every machine (to floating-point rounding);
+#: ``OBJECT_SETS["procedural"]`` holds the first PROCEDURAL_SET_SIZE. They are a training set:
+#: many shapes from the train families' parts.
 PROCEDURAL_PREFIX = "procedural_"
 PROCEDURAL_SET_SIZE = 64
 PROCEDURAL_SEED = 1125
@@ -754,7 +755,7 @@ def get_object(name: str) -> ObjectMesh:
     if not is_object_name(name):
         raise ValueError(
             f"unknown object {name!r}; library objects: {', '.join(OBJECT_NAMES)}, or "
-            f"{PROCEDURAL_PREFIX}<n> for procedural shape n (n = 0, 1, 2, ...)"
+            f"{PROCEDURAL_PREFIX}<n> for procedural shape n (0 <= n < 1000000, no leading zeros)"
         )
     return _build_object(name)
 
@@ -769,13 +770,20 @@ def _build_object(name: str) -> ObjectMesh:
 # --- procedural shapes -----------------------------------------------------------------------
 # Random composites of one to five parts of the kinds the train families are made of (boxes,
 # cylinders, frusta and pyramids, convex and L-shaped prisms, cups, blobs), standing side by
-# side or stacked, one part on one support. Never rings, tubes, tunnels, channels or legs:
-# the held-out and validation families stay unseen, so training on these measures
-# generalisation from more shapes, not from the test families.
+# side or stacked, one part on one support. No part is a ring, a tube, an arch, a channel or a
+# leg, so the held-out and validation families' defining parts stay unseen and training on
+# these measures generalisation from more shapes, not from the test families. Their
+# arrangement is free, though: parts may stand apart with gaps between them (15 of the 64 in
+# the set), and a stacked part may overhang its support (over another part in 16 of shapes
+# 64-1999, none of the set).
 
 _PROCEDURAL_NAME_DIGITS = 6
 _STACK_SINK = 0.002  # a stacked part sinks this deep into its support: no coincident faces
 _CUP_WALL, _CUP_BOTTOM = 0.004, 0.005
+#: A cup narrower than this inside (m, before the shape is scaled to size) would be slivers
+#: or turn itself inside out: it is built solid instead, from the same random draws, so every
+#: other shape stays as it was (the narrowest bore in the set, shape 4's, is 2.2 mm).
+_CUP_MIN_BORE = 0.001
 
 
 class _Support(NamedTuple):
@@ -834,6 +842,9 @@ def _random_part(rng: np.random.Generator, half: float) -> tuple[Part, float | N
         radius = half * rng.uniform(0.5, 0.9)
         rim = radius * rng.uniform(0.7, 1.1)
         segments = int(rng.choice([32, 4]))
+        if min(radius, rim) - _CUP_WALL < _CUP_MIN_BORE:
+            part = _revolve([(0, 0), (radius, 0), (rim, height), (0, height)], segments, phase=yaw)
+            return part, None
         outer = np.array([(radius, 0.0), (rim, height)])
         inner = np.array([(rim - _CUP_WALL, height), (radius - _CUP_WALL, _CUP_BOTTOM)])
         return _revolve(_cup_profile(outer, inner), segments, phase=yaw), None
