@@ -122,6 +122,10 @@ class CoverageTracker:
         self._samples_t = np.ascontiguousarray(self._inner_samples.T)
         if method == "grid":
             self._build_grid()
+        # The set-up is read-only from here on: fresh() copies share its arrays.
+        for value in vars(self).values():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
         self.reset()
 
     # -- state -------------------------------------------------------------------------------
