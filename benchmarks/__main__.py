@@ -312,6 +312,13 @@ def _speedup(row: dict, single: dict) -> float:
     return row["speedup"] if "speedup" in row else row["median"] / single["median"]
 
 
+#: Fetch's two measurements: the key in the figures, the report's row and ratio column.
+_PEER_ROWS = (
+    ("no_render", "FetchPickAndPlace-v4, no rendering", "vs Fetch, no rendering"),
+    ("rgb_84", "FetchPickAndPlace-v4, 84x84 RGB each step", "vs Fetch, 84x84 RGB"),
+)
+
+
 def _find(rows: list[dict], **match) -> dict | None:
     return next((r for r in rows if all(r.get(k) == v for k, v in match.items())), None)
 
@@ -336,8 +343,9 @@ def targets(results: dict) -> list[tuple]:
                 view["median"] >= VIEW_TARGET,
             )
         )
-    peer = results.get("peers")
-    if peer and view:
+    # The report is saved after each measurement, so Fetch may have only its first row yet.
+    peer = results.get("peers") or {}
+    if "rgb_84" in peer and view:
         ratio = view["median"] / peer["rgb_84"]["median"]
         out.append(
             (
@@ -347,7 +355,7 @@ def targets(results: dict) -> list[tuple]:
                 ratio >= VIEW_PEER_RATIO,
             )
         )
-    if peer and grasp:
+    if "no_render" in peer and grasp:
         ratio = grasp["median"] / peer["no_render"]["median"]
         out.append(
             (
@@ -495,37 +503,28 @@ def report(results: dict, command: str) -> str:
                 "",
             ]
         else:
+            measured = [row for row in _PEER_ROWS if row[0] in peer]
             rows = [
                 (
-                    "FetchPickAndPlace-v4, no rendering",
-                    _rate(peer["no_render"]),
-                    f"{peer['no_render']['min']:.0f}",
-                    f"{peer['no_render']['max']:.0f}",
-                    f"{peer['no_render']['mib']:.0f}",
-                ),
-                (
-                    "FetchPickAndPlace-v4, 84x84 RGB each step",
-                    _rate(peer["rgb_84"]),
-                    f"{peer['rgb_84']['min']:.0f}",
-                    f"{peer['rgb_84']['max']:.0f}",
-                    f"{peer['rgb_84']['mib']:.0f}",
-                ),
+                    name,
+                    _rate(peer[key]),
+                    f"{peer[key]['min']:.0f}",
+                    f"{peer[key]['max']:.0f}",
+                    f"{peer[key]['mib']:.0f}",
+                )
+                for key, name, _ in measured
             ]
             lines += _table(("env", "steps/s median", "min", "max", "peak RSS MiB"), rows)
-            ratios = []
-            for r in results.get("throughput") or []:
-                ratios.append(
-                    (
-                        r["env_id"],
-                        r["mode"],
-                        f"{r['median'] / peer['no_render']['median']:.2f}x",
-                        f"{r['median'] / peer['rgb_84']['median']:.2f}x",
-                    )
+            ratios = [
+                (
+                    r["env_id"],
+                    r["mode"],
+                    *(f"{r['median'] / peer[key]['median']:.2f}x" for key, _, _ in measured),
                 )
+                for r in results.get("throughput") or []
+            ]
             if ratios:
-                lines += _table(
-                    ("env", "mode", "vs Fetch, no rendering", "vs Fetch, 84x84 RGB"), ratios
-                )
+                lines += _table(("env", "mode", *(column for _, _, column in measured)), ratios)
             lines += ["Fetch runs in a `python -O` process: see `benchmarks/peers.py` for why.", ""]
     if "scaling" in results:
         lines += [

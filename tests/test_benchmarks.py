@@ -309,3 +309,24 @@ def test_help_says_which_files_are_written(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "benchmarks/RESULTS.md" in text and "benchmarks/RESULTS.json" in text
     assert "same path with the suffix .json" in text
+
+
+def test_report_saved_between_the_two_fetch_measurements_shows_the_first():
+    # The report is written after every measurement; with Fetch measured without rendering
+    # but not yet with it, the report (and its targets) must show what there is.
+    rate = {"median": 2000.0, "min": 1900.0, "max": 2100.0, "mib": 100.0}
+    results = {
+        "machine": dict(MACHINE),
+        "quick": False,
+        "throughput": [
+            {"env_id": "ViewPlanning-v0", "mode": VIEW_DEFAULT.label, **rate},
+            {"env_id": "InstrumentGrasp-v0", "mode": "state", **rate, "median": 3000.0},
+        ],
+        "peers": {"no_render": rate},
+    }
+    text = bench_cli.report(results, "python -m benchmarks")
+    assert "FetchPickAndPlace-v4, no rendering" in text and "84x84 RGB each step" not in text
+    goals = {goal: met for goal, _, met in bench_cli.targets(results)}
+    assert any("without rendering" in goal and met for goal, met in goals.items())
+    assert not any("with 84x84 RGB" in goal for goal in goals)
+    assert "| 1.50x |" in text  # the grasp env against Fetch without rendering
