@@ -40,7 +40,7 @@ from liuxing_envs.sim.camera import (
     DepthCamera,
     DepthNoise,
 )
-from liuxing_envs.sim.object_stage import ObjectStage, PlacedObject
+from liuxing_envs.sim.object_stage import PARKING_POSITION, ObjectStage, PlacedObject
 from liuxing_envs.sim.objects import (
     OBJECT_SETS,
     OBSERVABLE_CACHE_SIZE,
@@ -832,16 +832,13 @@ class _StandIn:
 
     def __init__(self, mesh, scale: float, *, with_arm: bool) -> None:
         self._stage = ObjectStage([mesh], (scale,))
-        spec = load_scene_spec()
-        spec.memory = _VariantScenes.MEMORY
-        if not with_arm:
-            spec.delete(spec.body(ARM_BASE_BODY))
-            for key in list(spec.keys):  # the keyframes hold the arm's joints
-                spec.delete(key)
-        self._stage.add_to_spec(spec)
-        self.model = spec.compile()
+        self.model = _stand_in_model(mesh, scale, with_arm)
         self.data = mujoco.MjData(self.model)
+        # The model is shared by the envs of a process, and binding switches its one
+        # variant's collisions off until it is placed: placing it here keeps them on for the
+        # envs whose stand-in was placed before. Each env poses the variant in its own data.
         self._stage.bind(self.model, self.data)
+        self._stage.place(mesh.name, scale, PARKING_POSITION, 0.0)
         self._placed: PlacedObject | None = None
         self.nbody = self.model.nbody - 1 if with_arm else 0
         self.ngeom = self.model.ngeom - 1 if with_arm else 0
@@ -870,6 +867,22 @@ class _StandIn:
         d.geom_xpos[:ngeom] = live.geom_xpos[:ngeom]
         d.geom_xmat[:ngeom] = live.geom_xmat[:ngeom]
         return d
+
+
+@lru_cache(maxsize=2 * OBSERVABLE_CACHE_SIZE)
+def _stand_in_model(mesh, scale: float, with_arm: bool) -> mujoco.MjModel:
+    """The compiled stand-in of one variant (see :class:`_VariantScenes`), shared by every env
+    of a process: about 0.34 MB and 3 ms apiece, so each env after the first is about 0.3 GB
+    smaller and 3 s faster to make with the 320 procedural variants. Nothing changes it after
+    :class:`_StandIn` has placed its variant."""
+    spec = load_scene_spec()
+    spec.memory = _VariantScenes.MEMORY
+    if not with_arm:
+        spec.delete(spec.body(ARM_BASE_BODY))
+        for key in list(spec.keys):  # the keyframes hold the arm's joints
+            spec.delete(key)
+    ObjectStage([mesh], (scale,)).add_to_spec(spec)
+    return spec.compile()
 
 
 @lru_cache(maxsize=OBSERVABLE_CACHE_SIZE)
