@@ -1,7 +1,9 @@
 """ViewPlanning-v0: API conformance, reward bookkeeping, coverage, determinism, bad input."""
 
+import gc
 import pickle
 import warnings
+import weakref
 
 import gymnasium as gym
 import numpy as np
@@ -541,6 +543,25 @@ def test_envs_of_one_process_share_stand_ins_without_disturbing_each_other():
     np.testing.assert_array_equal(first._render_depth(None), image)
     first.close()
     second.close()
+
+
+def test_a_shared_stand_in_lives_as_long_as_an_env_uses_it():
+    # A process that makes envs for one large user mesh after another must not keep every
+    # mesh's stand-ins: a shared model goes with the last env holding it.
+    key = ("box", 1.0)
+    first = ViewPlanningEnv(objects=["box"], scales=(1.0,))
+    model = weakref.ref(first._variant_scenes[key]._with_arm.model)
+    second = ViewPlanningEnv(objects=["box"], scales=(1.0,))
+    assert second._variant_scenes[key]._with_arm.model is model()
+    second.reset(seed=0)
+    first.close()
+    del first
+    gc.collect()
+    assert model() is not None
+    second.close()
+    del second
+    gc.collect()
+    assert model() is None
 
 
 def test_the_arm_collides_with_the_placed_object_and_not_with_parked_ones():
