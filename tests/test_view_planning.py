@@ -548,10 +548,11 @@ def test_envs_of_one_process_share_stand_ins_without_disturbing_each_other():
 def test_a_shared_stand_in_lives_as_long_as_an_env_uses_it():
     # A process that makes envs for one large user mesh after another must not keep every
     # mesh's stand-ins: a shared model goes with the last env holding it.
-    key = ("box", 1.0)
-    first = ViewPlanningEnv(objects=["box"], scales=(1.0,))
+    # A shape no other test uses: an env of another test may still hold a library object's.
+    key = ("procedural_4321", 1.0)
+    first = ViewPlanningEnv(objects=["procedural_4321"], scales=(1.0,))
     model = weakref.ref(first._variant_scenes[key]._with_arm.model)
-    second = ViewPlanningEnv(objects=["box"], scales=(1.0,))
+    second = ViewPlanningEnv(objects=["procedural_4321"], scales=(1.0,))
     assert second._variant_scenes[key]._with_arm.model is model()
     second.reset(seed=0)
     first.close()
