@@ -525,7 +525,7 @@ def test_collision_checks_in_the_stand_in_scene_match_the_live_model():
 
 
 def test_envs_of_one_process_share_stand_ins_without_disturbing_each_other():
-    # The stand-in models are shared by the envs of a process (a vectorised env saves 0.2 GB
+    # The stand-in models are shared by the envs of a process (a vectorised env saves 0.3 GB
     # per env with the procedural shapes); making another env must not hide the object from
     # the first env's collision checks or images mid-episode.
     options = {"object": "table", "position": (0.45, 0.0), "yaw": 0.0}

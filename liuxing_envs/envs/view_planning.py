@@ -879,8 +879,8 @@ _STAND_IN_MODELS: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
 def _stand_in_model(mesh, scale: float, with_arm: bool) -> mujoco.MjModel:
     """The compiled stand-in of one variant (see :class:`_VariantScenes`), shared by every env
     of a process: about 0.34 MB and 3 ms apiece, so each env after the first is about 0.3 GB
-    smaller and 3 s faster to make with the 320 procedural variants. Nothing changes it after
-    :class:`_StandIn` has placed its variant."""
+    smaller and 3 s faster to make with the 320 procedural variants. Each env's
+    :class:`_StandIn` leaves its one variant shown and collidable whenever it places it."""
     key = (mesh, float(scale), with_arm)
     model = _STAND_IN_MODELS.get(key)
     if model is None:

@@ -821,7 +821,7 @@ def _random_part(rng: np.random.Generator, half: float) -> tuple[Part, float | N
         top = bottom * rng.choice([1.0, rng.uniform(0.3, 0.9), 0.0])
         if top == 0.0:
             return _revolve([(0, 0), (bottom, 0), (0, height)], segments, phase=yaw), None
-        part = _revolve([(0, 0), (bottom, 0), (top, height), (0, height)], segments, phase=yaw)
+        part = _solid_frustum(bottom, top, height, segments, yaw)
         return part, top * np.cos(np.pi / segments)  # the top polygon's inscribed radius
     if kind == "prism":  # a convex outline with a flat base, extruded
         width = 2 * half * rng.uniform(0.5, 1.0)
@@ -843,12 +843,17 @@ def _random_part(rng: np.random.Generator, half: float) -> tuple[Part, float | N
         rim = radius * rng.uniform(0.7, 1.1)
         segments = int(rng.choice([32, 4]))
         if min(radius, rim) - _CUP_WALL < _CUP_MIN_BORE:
-            part = _revolve([(0, 0), (radius, 0), (rim, height), (0, height)], segments, phase=yaw)
-            return part, None
+            return _solid_frustum(radius, rim, height, segments, yaw), None
         outer = np.array([(radius, 0.0), (rim, height)])
         inner = np.array([(rim - _CUP_WALL, height), (radius - _CUP_WALL, _CUP_BOTTOM)])
         return _revolve(_cup_profile(outer, inner), segments, phase=yaw), None
     return _random_blob(rng, half, height), None
+
+
+def _solid_frustum(bottom: float, top: float, height: float, segments: int, yaw: float) -> Part:
+    """A solid of revolution from a disc of radius ``bottom`` on z = 0 to one of radius
+    ``top`` at ``height`` (a cylinder, frustum or, with few segments, a pyramid's frustum)."""
+    return _revolve([(0, 0), (bottom, 0), (top, height), (0, height)], segments, phase=yaw)
 
 
 def _random_blob(rng: np.random.Generator, half: float, height: float) -> Part:
