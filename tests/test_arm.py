@@ -265,3 +265,25 @@ def test_closed_form_ik_recovers_random_configurations():
             np.testing.assert_allclose(flange_pose_in_base(candidate), pose, atol=1e-8)
         wrapped = np.angle(np.exp(1j * (candidates[ok] - q)))
         assert np.abs(wrapped).max(axis=1).min() < 1e-6
+
+
+def test_closed_form_ik_of_one_pose_agrees_with_the_batch_branch_by_branch():
+    """One pose (a controller's query) takes a scalar path: the same solutions in the same
+    branches as the batch, for reachable, out-of-reach, singular and non-finite poses."""
+    rng = np.random.default_rng(11)
+    configurations = rng.uniform(-np.pi, np.pi, (300, 6))
+    configurations[::10, 4] = 0.0  # the wrist singularity: those branches have no solution
+    poses = np.stack([flange_pose_in_base(q) for q in configurations])
+    poses[::7, :3, 3] += rng.normal(scale=0.5, size=(len(poses[::7]), 3))  # often out of reach
+    poses[::13, :2, 3] = 0.01  # the wrist centre inside the shoulder offset
+    poses[299, 0, 3] = np.nan
+    batch, batch_valid = ur_ik(poses)
+    assert 0 < batch_valid.any(axis=1).sum() < len(poses) - 30
+    assert 0 < batch_valid.sum() < batch_valid.size - 300  # some branches of reachable poses fail
+    for pose, expected, expected_valid in zip(poses, batch, batch_valid, strict=True):
+        solutions, valid = ur_ik(pose)
+        assert solutions.shape == (1, 8, 6) and valid.shape == (1, 8)
+        np.testing.assert_array_equal(valid[0], expected_valid)
+        assert np.isnan(solutions[0][~valid[0]]).all()
+        # Rounding differs (the batch sums in BLAS), amplified near a straight elbow.
+        np.testing.assert_allclose(solutions[0][valid[0]], expected[expected_valid], atol=1e-9)

@@ -7,10 +7,18 @@ are up to eight solutions: shoulder left/right x wrist up/down x elbow up/down. 
 are returned in (-pi, pi]; joints with a wider range may be shifted by whole turns.
 
 Everything is vectorised over a batch of poses, so many candidate poses (for example every
-roll of a camera about its optical axis) cost one numpy pass.
+roll of a camera about its optical axis) cost one numpy pass. A single pose (a controller's
+target, once per control step) takes a scalar path instead: the same formulas on Python
+floats, several times faster than numpy's per-call overhead on arrays of one to eight
+elements. The two agree to rounding: within 2e-15 rad for 99% of random poses' solutions and
+5e-11 rad at worst in 30,000, near a straight elbow, where the closed form amplifies it. (The
+batch sums its 3-vector products in BLAS and einsum, whose order and fused multiply-adds
+depend on the CPU.)
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -24,6 +32,9 @@ _SINGULAR = 1e-6
 _SIGNS = np.array([1.0, -1.0])
 _TWO_PI = 2 * np.pi
 _SHOULDER_HEIGHT = np.array([0.0, 0.0, _D1])  # origin of DH frame 1 in the base frame
+#: The scalar path's constants as Python floats (numpy scalars would make its arithmetic slow).
+_D1F, _D4F, _D5F, _D6F = (float(d) for d in (_D1, _D4, _D5, _D6))
+_A2F, _A3F = float(_A2), float(_A3)
 
 
 def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -47,6 +58,9 @@ def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if poses.shape[1:] != (4, 4):
         raise ValueError(f"flange_poses must be (N, 4, 4), got {poses.shape}")
     n = len(poses)
+    if n == 1:
+        solutions = _solutions_of_one(poses[0])
+        return solutions, np.isfinite(solutions).all(axis=2)
     signs = _SIGNS
 
     # This runs once per environment step on a few dozen poses, so the cost is numpy's
@@ -124,3 +138,65 @@ def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     solutions = q.reshape(n, 8, 6)
     valid = np.isfinite(solutions).all(axis=2)
     return solutions, valid
+
+
+def _solutions_of_one(pose: np.ndarray) -> np.ndarray:
+    """``ur_ik`` of one pose: (1, 8, 6), the same formulas and branch order, on floats."""
+    solutions = np.full((1, 8, 6), np.nan)
+    if not np.isfinite(pose).all():
+        return solutions
+    (x0, y0, z0, px), (x1, y1, z1, py), (x2, y2, z2, pz), _ = pose.tolist()
+    # See ur_ik for the geometry of each joint; branches: shoulder, wrist, elbow.
+    x05, y05 = px - _D6F * z0, py - _D6F * z1
+    radius = float(np.hypot(x05, y05))  # numpy's hypot, as the batch (math.hypot differs)
+    if not radius > 0.0 or not _D4F / radius <= 1.0:
+        return solutions
+    phi1, phi2 = math.atan2(y05, x05), math.acos(_D4F / radius)
+    for shoulder_row, shoulder in ((0, 1.0), (4, -1.0)):
+        theta1 = phi1 + shoulder * phi2 + math.pi / 2
+        s1, c1 = math.sin(theta1), math.cos(theta1)
+        cos5 = (px * s1 - py * c1 - _D4F) / _D6F
+        if abs(cos5) > 1.0 + 1e-9:
+            continue
+        base5 = math.acos(min(max(cos5, -1.0), 1.0))
+        c5 = math.cos(base5)
+        x_on_z1, y_on_z1 = x0 * s1 - x1 * c1, y0 * s1 - y1 * c1
+        for wrist_row, wrist in ((shoulder_row, 1.0), (shoulder_row + 2, -1.0)):
+            theta5 = base5 * wrist
+            s5 = math.sin(theta5)
+            if abs(s5) < _SINGULAR:
+                continue
+            theta6 = math.atan2(-y_on_z1 / s5, x_on_z1 / s5)
+            s6, c6 = math.sin(theta6), math.cos(theta6)
+            # p13 and R14's first column in the base frame (R06 times the local vectors).
+            u0, u1, u2 = s6 * _D5F - c6 * s5 * _D4F, c6 * _D5F + s6 * s5 * _D4F, -_D6F - c5 * _D4F
+            v0, v1, v2 = c6 * c5, -s6 * c5, -s5
+            b0 = u0 * x0 + u1 * y0 + u2 * z0 + px
+            b1 = u0 * x1 + u1 * y1 + u2 * z1 + py
+            b2 = u0 * x2 + u1 * y2 + u2 * z2 + (pz - _D1F)
+            column_x = c1 * (v0 * x0 + v1 * y0 + v2 * z0) + s1 * (v0 * x1 + v1 * y1 + v2 * z1)
+            column_y = v0 * x2 + v1 * y2 + v2 * z2
+            reach = b0 * b0 + b1 * b1 + b2 * b2
+            cos3 = (reach - _A2F**2 - _A3F**2) / (2 * _A2F * _A3F)
+            if not -1.0 <= cos3 <= 1.0:
+                continue
+            base3, shoulder_to_wrist = math.acos(cos3), math.sqrt(reach)
+            offset = math.atan2(b2, -(c1 * b0 + s1 * b1))
+            column = math.atan2(column_y, column_x)
+            for row, elbow in ((wrist_row, 1.0), (wrist_row + 1, -1.0)):
+                theta3 = base3 * elbow
+                sin2 = _A3F * math.sin(theta3) / shoulder_to_wrist
+                if not -1.0 <= sin2 <= 1.0:
+                    continue
+                theta2 = math.asin(sin2) - offset
+                theta4 = column - theta2 - theta3
+                solutions[0, row] = [
+                    angle if -math.pi <= angle <= math.pi else _wrapped(angle)
+                    for angle in (theta1, theta2, theta3, theta4, theta5, theta6)
+                ]
+    return solutions
+
+
+def _wrapped(angle: float) -> float:
+    """The batch's wrap to (-pi, pi] by whole turns (np.rint and round both round half to even)."""
+    return angle - _TWO_PI * round(angle / _TWO_PI)
