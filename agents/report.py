@@ -32,6 +32,7 @@ from agents.statistics import (
     wilson_interval,
 )
 from agents.video import record_videos
+from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 
 DEFAULT_EPISODES = 100
 DEFAULT_RECONSTRUCT_EPISODES = 20
@@ -62,8 +63,8 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     envs = _open_envs(contestants)  # fails on a misfit model before any episode runs
     out = Path(out)
     try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
+        prepare_output_folder(out)
+    except OutputFolderError as error:
         for env in envs.values():
             env.close()
         raise ContestantError(f"cannot make the report folder {str(out)!r}: {error}") from error

@@ -63,6 +63,7 @@ from agents.evaluation import (
 from agents.plotting import plot_learning_curve
 from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS
 from agents.spaces import describe_space, same_space
+from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}
 VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
@@ -492,8 +493,8 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
     )
     created = not run_dir.exists()
     try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
+        prepare_output_folder(run_dir)
+    except OutputFolderError as error:
         raise ConfigError(f"cannot make the run folder {str(run_dir)!r}: {error}") from error
     venv = evaluation = None
     try:

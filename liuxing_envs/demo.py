@@ -12,7 +12,6 @@ import argparse
 import json
 import re
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import mujoco
 import numpy as np
 import open3d as o3d
 
+from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 from liuxing_envs.perception.pointcloud import crop_points
 from liuxing_envs.sim.arm import MOTION_MODES, Arm
 from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
@@ -152,19 +152,10 @@ def remove_outputs(out_dir: Path) -> list[Path]:
 
 def _check_out(parser: argparse.ArgumentParser, out: Path) -> None:
     """``out`` is, or can be made, a folder the scan can write its files into."""
-    if out.exists() and not out.is_dir():
-        parser.error(f"--out {out} is a file; --out names the folder the scan writes into")
     try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        file = next((p for p in out.parents if p.is_file()), None)
-        why = f"{file} is a file, not a folder" if file else error.strerror
-        parser.error(f"--out {out}: cannot create the folder: {why}")
-    try:
-        with tempfile.TemporaryFile(dir=out):
-            pass
-    except OSError as error:
-        parser.error(f"--out {out}: cannot write into the folder: {error.strerror or error}")
+        prepare_output_folder(out)
+    except OutputFolderError as error:
+        parser.error(f"--out {out}: {error}; --out names the folder the scan writes into")
     try:
         contents = list(out.iterdir())
     except OSError as error:

@@ -62,7 +62,7 @@ def test_an_out_that_is_a_file_or_not_writable_is_refused(tmp_path, capsys):
     file = tmp_path / "scan.ply"
     file.write_text("not a folder")
     error = _refused(capsys, "--out", str(file))
-    assert f"--out {file} is a file" in error and "folder" in error
+    assert f"--out {file}: {file} is a file, not a folder" in error
     error = _refused(capsys, "--out", str(file / "inside"))
     assert f"{file} is a file, not a folder" in error
     assert file.read_text() == "not a folder"

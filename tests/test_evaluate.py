@@ -299,6 +299,13 @@ def test_a_report_folder_that_is_a_file_fails_cleanly(tmp_path):
     assert taken.read_text() == "not a folder"
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_a_report_folder_that_cannot_take_files_fails_cleanly():
+    # /proc refuses new files even to root, whom permission bits would not stop.
+    stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=Path("/proc/self"))
+    assert "cannot make the report folder '/proc/self': cannot write into the folder" in stderr
+
+
 def test_a_corrupt_model_zip_fails_cleanly(tmp_path):
     run = tmp_path / "ppo_run"
     shutil.copytree(SHIPPED_VIEW_POLICY, run)

@@ -199,6 +199,16 @@ def test_a_run_folder_that_is_a_file_is_refused(tmp_path, capsys):
     assert taken.read_text() == "not a folder"
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_a_run_folder_that_cannot_take_files_is_refused(capsys):
+    # /proc refuses new files even to root, whom permission bits would not stop.
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(["--run-dir", "/proc/self", "-n", "64"])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert "cannot make the run folder '/proc/self': cannot write into the folder" in error
+
+
 def test_eval_env_kwargs_that_change_the_spaces_are_refused_before_training(tmp_path, capsys):
     run_dir = tmp_path / "run"
     argv = ["--hyperparams", "eval_env_kwargs={view_budget: 6}", "--run-dir", str(run_dir)]
