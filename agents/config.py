@@ -80,13 +80,21 @@ class ConfigError(ValueError):
 
 def closest(name: str, allowed: Iterable[str]) -> str:
     """``" (did you mean 'x'?)"`` for the closest allowed name, or ``""`` if none is close."""
+    if not isinstance(name, str):  # a YAML key or value of another kind: 5, [1]
+        return ""
     match = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.5)
     return f" (did you mean {match[0]!r}?)" if match else ""
 
 
-def int_at_least(name: str, value, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+def int_at_least(name: str, value, minimum: int = 1, maximum: int | None = None) -> int:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, np.integer))
+        or value < minimum
+        or (maximum is not None and value > maximum)
+    ):
+        wanted = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
+        raise ConfigError(f"{name} must be an integer {wanted}, got {value!r}")
     return int(value)
 
 
@@ -151,6 +159,16 @@ HYPERPARAM_RANGES = {
     "vf_coef": (0.0, np.inf),
     "max_grad_norm": (0.0, np.inf),
     "target_kl": (0.0, np.inf),
+    # Counts: SB3 takes 0 and fails later (target_update_interval=0 divides by zero).
+    "n_steps": (1, np.inf),
+    "batch_size": (1, np.inf),
+    "n_epochs": (1, np.inf),
+    "buffer_size": (1, np.inf),
+    "learning_starts": (0, np.inf),
+    "train_freq": (1, np.inf),
+    "gradient_steps": (-1, np.inf),  # -1: as many as env steps
+    "target_update_interval": (1, np.inf),
+    "stats_window_size": (1, np.inf),
 }
 #: Algorithm kwargs that train.py sets from its own flags.
 SET_BY_FLAGS = {"seed": "--seed", "device": "--device", "tensorboard_log": "--tensorboard"}

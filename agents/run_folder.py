@@ -51,6 +51,7 @@ DEMONSTRATIONS = "demonstrations.json"
 _CHECKPOINT = re.compile(r"model_(\d+)_steps\.zip")
 #: What a truncated, corrupt or foreign model, normaliser or replay-buffer file raises on load.
 UNREADABLE = (
+    AssertionError,  # SB3's checks of a model saved by another algorithm
     zipfile.BadZipFile,
     pickle.UnpicklingError,
     EOFError,
@@ -286,6 +287,9 @@ def read_config(run_dir: Path) -> dict:
         raise RunFolderError(
             f"{str(path)!r} lacks {', '.join(missing)}: truncated, or not written by train.py"
         )
+    for key in ("env_kwargs", "hyperparams"):
+        if not isinstance(config[key] or {}, dict):
+            raise RunFolderError(f"{str(path)!r}: {key} must be a mapping, got {config[key]!r}")
     return config
 
 

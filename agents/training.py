@@ -70,6 +70,7 @@ VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
 DEFAULT_ENV_ID = "ViewPlanning-v0"
 DEFAULT_ALGO = "ppo"
 DEFAULT_SEED = 0
+MAX_SEED = 2**32 - 1  # numpy's generators take seeds up to here
 DEFAULT_EVAL_FREQ = 5_000  # env steps between periodic evaluations
 DEFAULT_EVAL_EPISODES = 20
 DEFAULT_SAVE_FREQ = 10_000  # env steps between checkpoints
@@ -132,7 +133,7 @@ def resolve_config(
     config = {
         "env_id": env_id,
         "algo": algo,
-        "seed": int_at_least("seed", seed, minimum=0),
+        "seed": int_at_least("seed", seed, minimum=0, maximum=MAX_SEED),
         "n_timesteps": int_at_least(
             "timesteps", n_timesteps if n_timesteps is not None else harness.get("n_timesteps")
         ),
@@ -679,8 +680,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     may raise the run's total; ``overrides`` may change ``device`` or ``final_episodes``."""
     run_dir = Path(run_dir)
     config = run_folder.read_config(run_dir)
-    require_known("environment", config["env_id"], liuxing_envs.ENV_IDS)
-    require_known("algorithm", config["algo"], ALGOS)
+    _check_saved_config(config, run_dir / run_folder.CONFIG)
     steps = run_folder.latest_checkpoint(run_dir)
     if steps is None:
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no checkpoint to resume from")
@@ -702,6 +702,9 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     config["start_curriculum"] = check_start_curriculum(
         config["env_id"], config.get("start_curriculum")
     )
+    if steps >= config["n_timesteps"] and _comparison_pending(run_dir, config):
+        print(f"{str(run_dir)!r} finished training; running its final comparison")
+        return _final_comparison(run_dir, config, _read_result(run_dir, steps))
     if steps >= config["n_timesteps"]:
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {config['n_timesteps']} steps; "
@@ -810,6 +813,14 @@ def _learn(
             f"was saved at {steps} steps; "
             f"after a fix, continue with: python train.py --resume {run_dir}"
         ) from error
+    except Exception as error:  # a bug, or a setting SB3 took but cannot train with
+        model.num_timesteps = boundary.steps
+        steps = save_checkpoint(model, run_dir, level)
+        raise RuntimeError(
+            f"training stopped on {type(error).__name__}: {error} (traceback above). A "
+            f"checkpoint was saved at {steps} steps; after a fix, continue with: "
+            f"python train.py --resume {run_dir}"
+        ) from error
     finally:
         try:
             model.get_env().close()
@@ -828,15 +839,67 @@ def _learn(
     result = {"timesteps": int(model.num_timesteps), "train_seconds": round(seconds, 1)}
     if level is not None:
         result["start_curriculum"] = {"level": level.level, "advances": level.history}
-    if config["final_episodes"]:
-        policy = load_policy(run_dir, config, best=True)
+    # Written before the comparison too: a run stopped during it is trained, and --resume
+    # then runs the comparison alone.
+    run_folder.write_text_atomically(run_dir / run_folder.RESULT, json.dumps(result, indent=2))
+    return _final_comparison(run_dir, config, result) if config["final_episodes"] else result
+
+
+def _final_comparison(run_dir: Path, config: dict, result: dict) -> dict:
+    """The best model against the scripted baseline, added to the run's result.json."""
+    policy = load_policy(run_dir, config, best=True)
+    try:
         comparison = compare_with_baseline(
             config["env_id"], policy, config["env_kwargs"], config["final_episodes"]
         )
-        result["comparison"] = comparison
-        print(format_comparison(comparison))
+    except KeyboardInterrupt:
+        print(
+            "\ninterrupted during the final comparison; the trained run is saved. "
+            f"Run the comparison with: python train.py --resume {run_dir}"
+        )
+        raise
+    print(format_comparison(comparison))
+    result = {**result, "comparison": comparison}
     run_folder.write_text_atomically(run_dir / run_folder.RESULT, json.dumps(result, indent=2))
     return result
+
+
+def _comparison_pending(run_dir: Path, config: dict) -> bool:
+    """Whether a trained run lacks the final comparison its config asks for (stopped during
+    it, or before it)."""
+    if not config["final_episodes"] or not (run_dir / run_folder.FINAL_MODEL).is_file():
+        return False
+    return "comparison" not in _read_result(run_dir, steps=None)
+
+
+def _read_result(run_dir: Path, steps: int | None) -> dict:
+    """result.json, or what a run stopped before writing it can say: its step count."""
+    try:
+        result = json.loads((run_dir / run_folder.RESULT).read_text())
+    except (OSError, ValueError):
+        result = None
+    return result if isinstance(result, dict) else {"timesteps": steps}
+
+
+def _check_saved_config(config: dict, path: Path) -> None:
+    """A resumed run's config.yml holds values of the kinds train.py wrote (it may have been
+    edited by hand or damaged); checked before the run folder is touched."""
+    try:
+        require_known("environment", config["env_id"], liuxing_envs.ENV_IDS)
+        require_known("algorithm", config["algo"], ALGOS)
+        int_at_least("seed", config["seed"], minimum=0, maximum=MAX_SEED)
+        int_at_least("n_timesteps", config["n_timesteps"])
+        int_at_least("n_envs", config.get("n_envs", 1))
+        require_known("vec_env", config.get("vec_env", "dummy"), tuple(VEC_ENVS))
+        if not isinstance(config.get("eval_env_kwargs") or {}, Mapping):
+            raise ConfigError(
+                f"eval_env_kwargs must be a mapping, got {config['eval_env_kwargs']!r}"
+            )
+        for key in ("eval_freq", "save_freq", "final_episodes"):
+            int_at_least(key, config.get(key, 0), minimum=0)
+        int_at_least("eval_episodes", config.get("eval_episodes", 1))
+    except ConfigError as error:
+        raise run_folder.RunFolderError(f"{str(path)!r}: {error}") from error
 
 
 def load_policy(run_dir: Path, config: dict | None = None, best: bool = True) -> SB3Policy:

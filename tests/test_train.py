@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from stable_baselines3 import PPO
 
 import train
 from agents import run_folder
@@ -116,6 +117,16 @@ def test_a_python_expression_stays_a_string():
         (["--hyperparams", "env_kwargs=5"], "env_kwargs must be a mapping of env kwargs"),
         (["--hyperparams", "normalize=maybe"], "normalize must be true or false, got 'maybe'"),
         (["--hyperparams", "seed=3"], "seed is not a hyper-parameter here: set it with --seed"),
+        (
+            ["--algo", "sac", "--hyperparams", "target_update_interval=0"],
+            "SAC hyper-parameter target_update_interval must be in [1, inf], got 0",
+        ),
+        (["--seed", "5000000000"], "seed must be an integer in [0, 4294967295], got 5000000000"),
+        (["--hyperparams", "env_kwargs={5: 1}"], "unknown env kwarg 5 for ViewPlanning-v0"),
+        (
+            ["--hyperparams", "policy_kwargs.activation_fn=[[1]]"],
+            "unknown activation function [[1]]",
+        ),
         (["--vec-env", "subprocess"], "did you mean 'subproc'"),
         (["-n", "0"], "timesteps must be an integer >= 1"),
         (["--config", "no/such/file.yml"], "does not exist"),
@@ -173,7 +184,7 @@ def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
 @pytest.mark.parametrize(
     "hyperparam, reason",
     [
-        ("batch_size=0", "`batch_size` must be greater than 1"),
+        ("batch_size=1", "`batch_size` must be greater than 1"),
         ("policy_kwargs.net_arch=abc", "must be tuple of ints"),
         ("policy_kwargs.net_arch=[-1]", "negative dimension -1"),
     ],
@@ -460,6 +471,47 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
     assert not (tmp_path / "depth").exists()  # so the corrected command may reuse --run-dir
 
 
+def test_a_trained_run_without_its_final_comparison_gets_it_from_resume(tmp_path):
+    """A run stopped during its final comparison (or trained without one) is complete but
+    for it: --resume runs the comparison alone, without training further."""
+    run_dir = tmp_path / "run"
+    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    model = (run_dir / run_folder.FINAL_MODEL).read_bytes()
+    assert "comparison" not in json.loads((run_dir / run_folder.RESULT).read_text())
+    result = run_train("--resume", str(run_dir), "--final-episodes", "2")
+    assert "running its final comparison" in result.stdout
+    saved = json.loads((run_dir / run_folder.RESULT).read_text())
+    assert saved["timesteps"] == 64 and saved["comparison"]["policy"]["episodes"] == 2
+    assert (run_dir / run_folder.FINAL_MODEL).read_bytes() == model
+    assert run_folder.latest_checkpoint(run_dir) == 64
+    # Once it has its comparison, a finished run continues only with more steps.
+    result = run_train("--resume", str(run_dir), "--final-episodes", "2", check=False)
+    assert result.returncode == 2 and "pass a larger --timesteps" in result.stderr
+
+
+def test_a_failure_while_learning_saves_a_checkpoint_to_resume_from(tmp_path, monkeypatch):
+    """An error inside SB3's learning loop (a bug, or a setting it took but cannot train with)
+    keeps the steps learned so far."""
+    calls = []
+
+    def failing_second_update(self, *args, **kwargs):
+        calls.append(self.num_timesteps)
+        if len(calls) == 2:
+            raise ZeroDivisionError("integer modulo by zero")
+        return original(self, *args, **kwargs)
+
+    original = PPO.train
+    monkeypatch.setattr(PPO, "train", failing_second_update)
+    run_dir = tmp_path / "run"
+    with pytest.raises(RuntimeError, match="training stopped on ZeroDivisionError") as error:
+        train.main(
+            [*quick_args("ViewPlanning-v0", "ppo", run_dir, 256), "--save-freq", "0"]
+            + ["--final-episodes", "0"]
+        )
+    assert f"continue with: python train.py --resume {run_dir}" in str(error.value)
+    assert 0 < run_folder.latest_checkpoint(run_dir) <= calls[1]
+
+
 @pytest.mark.slow
 def test_resuming_a_finished_run_needs_more_steps(tmp_path):
     run_dir = tmp_path / "run"
@@ -476,6 +528,30 @@ def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(tmp_path):
     path.write_text(path.read_text().replace("algo: ppo", "algo: a2c"))
     result = run_train("--resume", str(run_dir), "-n", "128", check=False)
     assert result.returncode == 2 and "unknown algorithm 'a2c'" in result.stderr
+
+
+@pytest.mark.parametrize(
+    "saved, edited, message",
+    [
+        ("n_envs: 2", "n_envs: two", "n_envs must be an integer >= 1, got 'two'"),
+        ("vec_env: dummy", "vec_env: subprocess", "unknown vec_env 'subprocess'"),
+        ("seed: 0", "seed: zero", "seed must be an integer in [0, 4294967295], got 'zero'"),
+        ("final_episodes: 0", "final_episodes: -1", "final_episodes must be an integer >= 0"),
+        ("env_kwargs:", "env_kwargs: 5\nold_env_kwargs:", "env_kwargs must be a mapping, got 5"),
+    ],
+)
+def test_a_damaged_config_is_refused_on_resume_before_the_folder_changes(
+    saved, edited, message, tmp_path
+):
+    run_dir = tmp_path / "run"
+    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    path = run_dir / run_folder.CONFIG
+    assert f"\n{saved}\n" in path.read_text()
+    path.write_text(path.read_text().replace(f"\n{saved}\n", f"\n{edited}\n"))
+    before = {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()}
+    result = run_train("--resume", str(run_dir), "-n", "128", check=False)
+    assert result.returncode == 2 and f"config.yml': {message}" in result.stderr
+    assert {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()} == before
 
 
 def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
