@@ -291,6 +291,15 @@ def test_a_model_that_does_not_fit_its_env_fails_before_any_episode(tmp_path):
     assert not out.exists()
 
 
+def test_a_run_folder_whose_config_names_another_algorithm_fails_cleanly(tmp_path):
+    run_dir = tmp_path / "run"
+    shutil.copytree(SHIPPED_VIEW_POLICY, run_dir)
+    config = run_dir / "config.yml"
+    config.write_text(config.read_text().replace("\nalgo: ppo\n", "\nalgo: sac\n"))
+    stderr = evaluate_fails(str(run_dir))
+    assert "best_model.zip' is not a readable SAC model zip" in stderr
+
+
 def test_a_report_folder_that_is_a_file_fails_cleanly(tmp_path):
     taken = tmp_path / "report"
     taken.write_text("not a folder")
