@@ -76,12 +76,14 @@ def test_make_vec_and_pickle_round_trip():
 def test_reward_terms_sum_to_reward_and_seeds_repeat():
     def rollout():
         env = gym.make("InstrumentGrasp-v0")
-        env.reset(seed=11)
+        _, reset_info = env.reset(seed=11)
         env.action_space.seed(11)
         trace = []
         for _ in range(60):
             observation, reward, terminated, truncated, info = env.step(env.action_space.sample())
             assert set(REWARD_TERMS) <= set(info)
+            # Every key but the reward terms is there from reset on (the docstring's list).
+            assert set(info) - set(REWARD_TERMS) == set(reset_info)
             assert reward == pytest.approx(sum(info[t] for t in REWARD_TERMS), abs=1e-9)
             trace.append((reward, observation["instrument"].copy(), observation["proprio"].copy()))
             if terminated or truncated:
@@ -277,6 +279,12 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
     with pytest.raises(ValueError, match=r"at any yaw .*the tray's inside spans x 0.355-0.645"):
         env.reset(seed=99, options={"position": (0.9, 0.9)})
     assert env.np_random.bit_generator.state == before  # refused before anything changed
+    # A position the check accepts always resets, even where few yaws fit (a review found
+    # seeds whose 100 random yaws all missed, refused after the generator was reseeded).
+    scalpel = InstrumentGraspEnv(instruments=["scalpel"])
+    for seed in range(20):
+        scalpel.reset(seed=seed, options={"position": (0.3985, -0.1365)})
+        np.testing.assert_allclose(scalpel.world.grasp_point()[:2], (0.3985, -0.1365), atol=2e-3)
     with pytest.raises(ValueError, match="unknown reset option"):
         env.reset(options={"colour": "red"})
     with pytest.raises(ValueError, match="instrument='spoon'"):
@@ -360,6 +368,7 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
         ({"controller": "torque"}, "controller"),
         ({"instrument_set": "test"}, "instrument_set"),
         ({"instruments": ["spoon"]}, "instruments"),
+        ({"instruments": ["scalpel", "scalpel"]}, "instruments must be unique"),
         ({"force_limit": -1.0}, "force_limit"),
         ({"force_limit": float("nan")}, "force_limit"),
         ({"control_hz": 30.0}, "control_hz"),

@@ -116,6 +116,9 @@ PLACEMENT_REGION = ((0.44, -0.08), (0.56, 0.08))
 #: Placements are redrawn until the whole instrument lies this far inside the tray's rim.
 TRAY_MARGIN = 0.01  # m
 PLACEMENT_TRIES = 100
+#: The yaws a ``position`` reset option is checked at (and drawn from, where random draws
+#: miss the few at which it fits).
+CHECKED_YAWS = np.linspace(0, 2 * np.pi, 24, endpoint=False)
 SETTLE_STEPS = 50
 #: Bounds of the ``tool_start`` reset option: the tool centre's offset from the grasp point (m).
 TOOL_START_LOW = np.array([-0.05, -0.05, 0.0])
@@ -248,7 +251,8 @@ class InstrumentGraspEnv(gym.Env):
       would have paid. The env cannot see its TimeLimit wrapper: when you change
       ``max_episode_steps``, pass the same number as ``episode_steps`` (default 200).
 
-    Peaks are over the control step, sampled every 10 ms of physics.
+    Peaks are over the control step, sampled every 5 physics steps (10 ms at the default
+    ``timestep``).
 
     **Success** (``info["is_success"]``): the instrument has been lifted by ``target_height``
     and held there, grasped, for ``hold_time`` s, and the episode's peak fingertip force has
@@ -267,7 +271,8 @@ class InstrumentGraspEnv(gym.Env):
     lies 1 cm inside the rim), optionally with its mass and friction scaled by factors drawn
     from ``mass_range`` / ``friction_range``. The arm starts in a ready pose with the wrist
     camera 0.45 m above the tray and the gripper open 6 cm. ``reset(options=...)`` may fix
-    ``instrument``, ``position`` (grasp point x, y) and ``yaw``, and may start the arm
+    ``instrument``, ``position`` (grasp point x, y; without ``yaw``, at a random yaw at which
+    the instrument fits the tray) and ``yaw``, and may start the arm
     elsewhere: ``tool_start`` = (x, y, z), the tool centre's offset from the grasp point (m;
     z 0-0.3; clipped to the workspace, so offsets below ~3 mm all start at its floor), with
     the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad) and opened to
@@ -379,6 +384,8 @@ class InstrumentGraspEnv(gym.Env):
                 raise ValueError(f"{expected}, got {instruments!r}") from None
             if not names or any(name not in INSTRUMENT_SETS["all"] for name in names):
                 raise ValueError(f"{expected}, got {instruments!r}")
+            if len(set(names)) < len(names):  # a repeat would silently weight the sampling
+                raise ValueError(f"instruments must be unique, got {instruments!r}")
         self.mass_range = (
             None if mass_range is None else require_range("mass_range", mass_range, *SCALE_LIMITS)
         )
@@ -461,11 +468,19 @@ class InstrumentGraspEnv(gym.Env):
             if world.fits_on_tray(xy, yaw):
                 break
         else:
-            raise ValueError(
-                f"{name} with its grasp point at {xy.tolist()} and yaw {yaw:.3f} rad does not "
-                f"lie inside the tray with {TRAY_MARGIN * 1000:.0f} mm to spare"
-                f"{self._tray_extent()}"
-            )
+            # A position that fits at few yaws (checked above) may be missed by every draw.
+            fitting = [
+                y
+                for y in (CHECKED_YAWS if "position" in options and "yaw" not in options else ())
+                if world.fits_on_tray(xy, y)
+            ]
+            if not fitting:
+                raise ValueError(
+                    f"{name} with its grasp point at {xy.tolist()} and yaw {yaw:.3f} rad does "
+                    f"not lie inside the tray with {TRAY_MARGIN * 1000:.0f} mm to spare"
+                    f"{self._tray_extent()}"
+                )
+            yaw = float(fitting[rng.integers(len(fitting))])
         mass_scale = rng.uniform(*self.mass_range) if self.mass_range else 1.0
         friction_scale = rng.uniform(*self.friction_range) if self.friction_range else 1.0
         if self._renderer is not None and self.world.name != name:
@@ -574,8 +589,14 @@ class InstrumentGraspEnv(gym.Env):
         truncated = False  # the TimeLimit wrapper's job, as in Gymnasium's MuJoCo envs
         if terminated:
             self._episode_ready = False
-        info = self._info(terms, grasped=grasped, pad_peak=pad_peak, success=success, lift=lift)
-        info["hard_limit_exceeded"] = bool(broke_limit)
+        info = self._info(
+            terms,
+            grasped=grasped,
+            pad_peak=pad_peak,
+            success=success,
+            lift=lift,
+            broke_limit=broke_limit,
+        )
         return self._observation(), reward, terminated, truncated, info
 
     def _end_unstable(self):
@@ -587,7 +608,6 @@ class InstrumentGraspEnv(gym.Env):
         info = self._info(
             terms, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0, unstable=True
         )
-        info["hard_limit_exceeded"] = False
         observation = {key: np.nan_to_num(value) for key, value in self._observation().items()}
         return observation, 0.0, False, True, info
 
@@ -654,7 +674,7 @@ class InstrumentGraspEnv(gym.Env):
         ``instrument`` option, every instrument) inside the tray at its ``yaw`` option or at
         some yaw; checked before the reset touches the env's state or generator."""
         names = [options["instrument"]] if "instrument" in options else self.instrument_names
-        yaws = [options["yaw"]] if "yaw" in options else np.linspace(0, 2 * np.pi, 24, False)
+        yaws = [options["yaw"]] if "yaw" in options else CHECKED_YAWS
         xy = np.asarray(options["position"], dtype=float)
         for name in names:
             if not any(self._worlds[name].fits_on_tray(xy, float(yaw)) for yaw in yaws):
@@ -744,7 +764,15 @@ class InstrumentGraspEnv(gym.Env):
         return obs
 
     def _info(
-        self, terms: dict, *, grasped: bool, pad_peak, success: bool, lift: float, unstable=False
+        self,
+        terms: dict,
+        *,
+        grasped: bool,
+        pad_peak,
+        success: bool,
+        lift: float,
+        unstable: bool = False,
+        broke_limit: bool = False,
     ) -> dict:
         world = self.world
         return {
@@ -759,6 +787,7 @@ class InstrumentGraspEnv(gym.Env):
             "impact_violations": self._impact_violations,
             "instrument": world.name,
             "sim_unstable": unstable,
+            "hard_limit_exceeded": bool(broke_limit),
         }
 
 

@@ -224,7 +224,8 @@ class ViewPlanningEnv(gym.Env):
     the action ranges above, ``coverage_samples``, ``epsilon_fraction``, ``success_coverage``,
     ``terminate_on_success``, ``coverage_reward_scale``, ``motion_cost``, ``refusal_penalty``,
     ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``,
-    ``observe_free_space``, ``privileged``,
+    ``table_crop_height`` (m above the table below which points are cropped before fusion
+    and coverage: the table itself), ``observe_free_space``, ``privileged``,
     ``render_mode`` ("rgb_array": the scene from the overview camera with the fused points
     and the camera's frustum).
 
