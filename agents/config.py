@@ -227,7 +227,10 @@ def load_yaml(path: str | Path) -> dict:
     except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise ConfigError(f"config file {str(path)!r} is not valid YAML: {error}") from error
     if content is None:
-        return {}
+        raise ConfigError(
+            f"config file {str(path)!r} is empty; it must map env ids to hyper-parameters, "
+            "as agents/hyperparams/<algo>.yml does"
+        )
     if not isinstance(content, dict):
         raise ConfigError(f"config file {str(path)!r} must hold a mapping, got {type(content)}")
     odd = [key for key in content if not isinstance(key, str)]

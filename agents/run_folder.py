@@ -272,6 +272,8 @@ def write_config(run_dir: Path, config: dict) -> None:
 def read_config(run_dir: Path) -> dict:
     run_dir = Path(run_dir)
     path = run_dir / CONFIG
+    if run_dir.is_file():
+        raise RunFolderError(f"run folder {str(run_dir)!r} is a file, not a run's folder")
     if not run_dir.is_dir():
         raise RunFolderError(f"run folder {str(run_dir)!r} does not exist")
     if not path.is_file():

@@ -132,6 +132,7 @@ def test_a_python_expression_stays_a_string():
         (["--config", "no/such/file.yml"], "does not exist"),
         (["--config", str(Path(__file__).parent)], "is a folder; give a YAML file"),
         (["--resume", "no/such/run"], "does not exist"),
+        (["--resume", __file__], "is a file, not a run's folder"),
         (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
         (["--resume", "runs/x", "--init-from", "runs/y"], "--init-from cannot be changed"),
         (["--init-from", "no/such/run"], "--init-from: run folder 'no/such/run' does not exist"),
@@ -233,7 +234,11 @@ def test_eval_env_kwargs_that_change_the_spaces_are_refused_before_training(tmp_
 
 @pytest.mark.parametrize(
     "content, message",
-    [(b"\xff\xfe\x00garbage", "is not valid YAML"), (b"5: {n_steps: 64}", "not names: [5]")],
+    [
+        (b"\xff\xfe\x00garbage", "is not valid YAML"),
+        (b"5: {n_steps: 64}", "not names: [5]"),
+        (b"", "is empty; it must map env ids to hyper-parameters"),
+    ],
 )
 def test_a_config_file_that_is_not_a_yaml_mapping_of_names_is_refused(
     content, message, tmp_path, capsys
