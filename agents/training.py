@@ -746,7 +746,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
         raise
     run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
     # A new stream: the resumed run must not replay the episodes it has already seen.
-    model.set_random_seed(config["seed"] + steps)
+    model.set_random_seed((config["seed"] + steps) % (MAX_SEED + 1))
     return _learn(
         model,
         config,

@@ -517,6 +517,15 @@ def test_a_failure_while_learning_saves_a_checkpoint_to_resume_from(tmp_path, mo
     assert 0 < run_folder.latest_checkpoint(run_dir) <= calls[1]
 
 
+def test_a_run_with_the_largest_seed_resumes(tmp_path):
+    """A resumed run draws a new stream seeded with seed + steps, wrapped into numpy's range."""
+    run_dir = tmp_path / "run"
+    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 64)
+    run_train(*args, "--seed", str(2**32 - 1), "--final-episodes", "0")
+    run_train("--resume", str(run_dir), "-n", "128", "--final-episodes", "0")
+    assert run_folder.latest_checkpoint(run_dir) == 128
+
+
 @pytest.mark.slow
 def test_resuming_a_finished_run_needs_more_steps(tmp_path):
     run_dir = tmp_path / "run"
