@@ -289,8 +289,8 @@ def read_config(run_dir: Path) -> dict:
         raise RunFolderError(
             f"{str(path)!r} lacks {', '.join(missing)}: truncated, or not written by train.py"
         )
-    for key in ("env_kwargs", "hyperparams"):
-        if not isinstance(config[key] or {}, dict):
+    for key in ("env_kwargs", "eval_env_kwargs", "hyperparams"):
+        if not isinstance(config.get(key) or {}, dict):
             raise RunFolderError(f"{str(path)!r}: {key} must be a mapping, got {config[key]!r}")
     return config
 

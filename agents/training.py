@@ -702,10 +702,13 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     config["start_curriculum"] = check_start_curriculum(
         config["env_id"], config.get("start_curriculum")
     )
-    if steps >= config["n_timesteps"] and _comparison_pending(run_dir, config):
-        print(f"{str(run_dir)!r} finished training; running its final comparison")
-        return _final_comparison(run_dir, config, _read_result(run_dir, steps))
     if steps >= config["n_timesteps"]:
+        # Stopped during (or trained without) the final comparison its config asks for.
+        result = _read_result(run_dir, steps)
+        trained = (run_dir / run_folder.FINAL_MODEL).is_file()
+        if config["final_episodes"] and trained and "comparison" not in result:
+            print(f"{str(run_dir)!r} finished training; running its final comparison")
+            return _final_comparison(run_dir, config, result)
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {config['n_timesteps']} steps; "
             "pass a larger --timesteps to continue it"
@@ -803,23 +806,20 @@ def _learn(
             f"Continue with: python train.py --resume {run_dir}"
         )
         raise
-    except WORKER_GONE as error:
-        # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
+    except Exception as error:  # a dying worker, a bug, or a setting SB3 cannot train with
         model.num_timesteps = boundary.steps
         steps = save_checkpoint(model, run_dir, level)
+        if isinstance(error, WORKER_GONE):
+            # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
+            what = (
+                f"a {config['env_id']} worker process of the vectorised env died; its "
+                "traceback is printed above and ends with the env and the step that failed."
+            )
+        else:
+            what = f"training stopped on {type(error).__name__}: {error} (traceback above)."
         raise RuntimeError(
-            f"a {config['env_id']} worker process of the vectorised env died; its traceback "
-            "is printed above and ends with the env and the step that failed. A checkpoint "
-            f"was saved at {steps} steps; "
+            f"{what} A checkpoint was saved at {steps} steps; "
             f"after a fix, continue with: python train.py --resume {run_dir}"
-        ) from error
-    except Exception as error:  # a bug, or a setting SB3 took but cannot train with
-        model.num_timesteps = boundary.steps
-        steps = save_checkpoint(model, run_dir, level)
-        raise RuntimeError(
-            f"training stopped on {type(error).__name__}: {error} (traceback above). A "
-            f"checkpoint was saved at {steps} steps; after a fix, continue with: "
-            f"python train.py --resume {run_dir}"
         ) from error
     finally:
         try:
@@ -864,15 +864,7 @@ def _final_comparison(run_dir: Path, config: dict, result: dict) -> dict:
     return result
 
 
-def _comparison_pending(run_dir: Path, config: dict) -> bool:
-    """Whether a trained run lacks the final comparison its config asks for (stopped during
-    it, or before it)."""
-    if not config["final_episodes"] or not (run_dir / run_folder.FINAL_MODEL).is_file():
-        return False
-    return "comparison" not in _read_result(run_dir, steps=None)
-
-
-def _read_result(run_dir: Path, steps: int | None) -> dict:
+def _read_result(run_dir: Path, steps: int) -> dict:
     """result.json, or what a run stopped before writing it can say: its step count."""
     try:
         result = json.loads((run_dir / run_folder.RESULT).read_text())
@@ -891,10 +883,6 @@ def _check_saved_config(config: dict, path: Path) -> None:
         int_at_least("n_timesteps", config["n_timesteps"])
         int_at_least("n_envs", config.get("n_envs", 1))
         require_known("vec_env", config.get("vec_env", "dummy"), tuple(VEC_ENVS))
-        if not isinstance(config.get("eval_env_kwargs") or {}, Mapping):
-            raise ConfigError(
-                f"eval_env_kwargs must be a mapping, got {config['eval_env_kwargs']!r}"
-            )
         for key in ("eval_freq", "save_freq", "final_episodes"):
             int_at_least(key, config.get(key, 0), minimum=0)
         int_at_least("eval_episodes", config.get("eval_episodes", 1))

@@ -469,11 +469,8 @@ class InstrumentGraspEnv(gym.Env):
                 break
         else:
             # A position that fits at few yaws (checked above) may be missed by every draw.
-            fitting = [
-                y
-                for y in (CHECKED_YAWS if "position" in options and "yaw" not in options else ())
-                if world.fits_on_tray(xy, y)
-            ]
+            free_yaw = "position" in options and "yaw" not in options
+            fitting = [y for y in CHECKED_YAWS if world.fits_on_tray(xy, y)] if free_yaw else []
             if not fitting:
                 raise ValueError(
                     f"{name} with its grasp point at {xy.tolist()} and yaw {yaw:.3f} rad does "

@@ -149,7 +149,7 @@ def _solutions_of_one(pose: np.ndarray) -> np.ndarray:
     # See ur_ik for the geometry of each joint; branches: shoulder, wrist, elbow.
     x05, y05 = px - _D6F * z0, py - _D6F * z1
     radius = float(np.hypot(x05, y05))  # numpy's hypot, as the batch (math.hypot differs)
-    if not radius > 0.0 or not _D4F / radius <= 1.0:
+    if not radius > 0.0 or not _D4F / radius <= 1.0:  # inside the shoulder offset
         return solutions
     phi1, phi2 = math.atan2(y05, x05), math.acos(_D4F / radius)
     for shoulder_row, shoulder in ((0, 1.0), (4, -1.0)):
