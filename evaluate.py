@@ -24,8 +24,9 @@ import argparse
 import os
 import sys
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+from liuxing_envs.opengl import mujoco_import_problem, use_headless_default
+
+use_headless_default()
 
 from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
 
@@ -106,6 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     for flag in ("seed", "reconstruct_episodes", "save_reconstructions"):
         if getattr(args, flag) < 0:
             parser.error(f"--{flag.replace('_', '-')} must be 0 or more")
+    if problem := mujoco_import_problem():
+        parser.error(problem)
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
     from agents import contestants as contest
     from agents import report

@@ -15,11 +15,11 @@ evaluation history and learning curve. Ctrl-C saves a checkpoint that --resume c
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+from liuxing_envs.opengl import mujoco_import_problem, use_headless_default
+
+use_headless_default()
 
 from agents import interrupts  # noqa: E402
 from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
@@ -89,6 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     # A scheduler's SIGTERM (pre-emption, `kill`) saves a checkpoint just as Ctrl-C does.
     interrupts.install()
+    if problem := mujoco_import_problem():
+        parser.error(problem)
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
     from agents import training
 

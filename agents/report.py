@@ -63,11 +63,11 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     envs = _open_envs(contestants)  # fails on a misfit model before any episode runs
     out = Path(out)
     try:
-        prepare_output_folder(out)
+        prepare_output_folder(out, files=(REPORT_JSON, REPORT_MD))
     except OutputFolderError as error:
         for env in envs.values():
             env.close()
-        raise ContestantError(f"cannot make the report folder {str(out)!r}: {error}") from error
+        raise ContestantError(f"cannot write the report into {str(out)!r}: {error}") from error
     seeds = range(settings.seed, settings.seed + settings.episodes)
     progress = _progress_bar(len(contestants) * settings.episodes, settings.progress)
     results = []

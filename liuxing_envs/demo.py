@@ -15,16 +15,24 @@ import sys
 import time
 from pathlib import Path
 
-import mujoco
-import numpy as np
-import open3d as o3d
+from liuxing_envs.opengl import mujoco_import_problem, use_headless_default
 
-from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
-from liuxing_envs.perception.pointcloud import crop_points
-from liuxing_envs.sim.arm import MOTION_MODES, Arm
-from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
-from liuxing_envs.sim.scene import WRIST_CAMERA, load_scene_spec, reset_to_home
-from liuxing_envs.sim.viewpoints import sphere_viewpoint
+if __name__ == "__main__":  # before mujoco is imported: it reads MUJOCO_GL once, on import
+    use_headless_default()
+    if problem := mujoco_import_problem():
+        print(f"python -m liuxing_envs.demo: error: {problem}", file=sys.stderr)
+        sys.exit(2)
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import open3d as o3d  # noqa: E402
+
+from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder  # noqa: E402
+from liuxing_envs.perception.pointcloud import crop_points  # noqa: E402
+from liuxing_envs.sim.arm import MOTION_MODES, Arm  # noqa: E402
+from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera  # noqa: E402
+from liuxing_envs.sim.scene import WRIST_CAMERA, load_scene_spec, reset_to_home  # noqa: E402
+from liuxing_envs.sim.viewpoints import sphere_viewpoint  # noqa: E402
 
 DEMO_OBJECT_CENTER = (0.5, 0.0)
 DEMO_VIEWS = 8

@@ -7,6 +7,7 @@ must be refused at once, not after minutes of episodes whose results are then lo
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
 
@@ -14,8 +15,9 @@ class OutputFolderError(ValueError):
     """A folder that cannot be made or written into; the message says why."""
 
 
-def prepare_output_folder(folder: str | Path) -> Path:
-    """Make ``folder`` (with its parents) and check that a file can be written into it."""
+def prepare_output_folder(folder: str | Path, files: Iterable[str] = ()) -> Path:
+    """Make ``folder`` (with its parents) and check that a file can be written into it, and
+    that none of the ``files`` the work will write there is taken by a folder or the like."""
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise OutputFolderError(f"{folder} is a file, not a folder")
@@ -32,4 +34,10 @@ def prepare_output_folder(folder: str | Path) -> Path:
         raise OutputFolderError(
             f"cannot write into the folder: {error.strerror or error}"
         ) from error
+    for name in files:
+        path = folder / name
+        if path.exists() and not path.is_file():
+            raise OutputFolderError(
+                f"{path} is not a file, and a file of that name is written there"
+            )
     return folder

@@ -304,15 +304,24 @@ def test_a_report_folder_that_is_a_file_fails_cleanly(tmp_path):
     taken = tmp_path / "report"
     taken.write_text("not a folder")
     stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=taken)
-    assert f"cannot make the report folder '{taken}'" in stderr
+    assert f"cannot write the report into '{taken}'" in stderr
     assert taken.read_text() == "not a folder"
+
+
+@pytest.mark.parametrize("name", ["report.json", "report.md"])
+def test_a_folder_where_the_report_writes_a_file_fails_before_any_episode(tmp_path, name):
+    out = tmp_path / "report"
+    (out / name).mkdir(parents=True)
+    stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=out)
+    assert f"{out / name} is not a file, and a file of that name is written there" in stderr
+    assert sorted(p.name for p in out.iterdir()) == [name]
 
 
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
 def test_a_report_folder_that_cannot_take_files_fails_cleanly():
     # /proc refuses new files even to root, whom permission bits would not stop.
     stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=Path("/proc/self"))
-    assert "cannot make the report folder '/proc/self': cannot write into the folder" in stderr
+    assert "cannot write the report into '/proc/self': cannot write into the folder" in stderr
 
 
 def test_a_corrupt_model_zip_fails_cleanly(tmp_path):

@@ -8,6 +8,7 @@ examples every time.
 import inspect
 import json
 import math
+import os
 import subprocess
 import sys
 
@@ -22,6 +23,7 @@ from hypothesis.extra import numpy as hnp
 import liuxing_envs  # noqa: F401  (registers the ids)
 from liuxing_envs.envs.instrument_grasp import REWARD_TERMS, InstrumentGraspEnv
 from liuxing_envs.envs.view_planning import ViewPlanningEnv
+from tests.scripts import REPO
 
 FUZZ = settings(
     max_examples=60,
@@ -494,3 +496,30 @@ def test_the_class_docstring_names_every_keyword_argument(env_class):
     names = [name for name in inspect.signature(env_class.__init__).parameters if name != "self"]
     missing = [n for n in names if f"``{n}``" not in doc and f"``{n}=" not in doc]
     assert not missing
+
+
+@pytest.mark.parametrize(
+    ("command", "out_flag"),
+    [
+        (["train.py", "-n", "10"], "--run-dir"),
+        (["evaluate.py", "four-view", "--env", "ViewPlanning-v0", "--episodes", "1"], "--out"),
+        (["-m", "liuxing_envs.demo", "--views", "1"], "--out"),
+    ],
+    ids=["train", "evaluate", "demo"],
+)
+def test_an_unknown_mujoco_gl_platform_is_named_with_the_allowed_ones(command, out_flag, tmp_path):
+    # import mujoco itself raises on it, before any fallback to ray casting can run.
+    result = subprocess.run(
+        [sys.executable, *command, out_flag, str(tmp_path / "out")],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "MUJOCO_GL": "bogus"},
+        timeout=120,
+    )
+    assert result.returncode == 2, result.stderr
+    error = " ".join(result.stderr.split())
+    assert "MuJoCo cannot start with MUJOCO_GL='bogus'" in error
+    assert "egl (headless" in error and "disable (no OpenGL" in error
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "out").exists()
