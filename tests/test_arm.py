@@ -7,7 +7,7 @@ import pytest
 from liuxing_envs.sim.arm import Arm, JointPath
 from liuxing_envs.sim.kinematics import flange_pose_in_base
 from liuxing_envs.sim.scene import HOME_QPOS, WRIST_CAMERA_SITE, load_scene_model, reset_to_home
-from liuxing_envs.sim.ur_ik import ur_ik
+from liuxing_envs.sim.ur_ik import solutions_of_one, ur_ik
 from liuxing_envs.sim.viewpoints import look_at, sphere_viewpoint, view_grid
 
 TABLE_POINT = np.array([0.5, 0.0, 0.0])  # on the table, in front of the arm
@@ -265,6 +265,29 @@ def test_closed_form_ik_recovers_random_configurations():
             np.testing.assert_allclose(flange_pose_in_base(candidate), pose, atol=1e-8)
         wrapped = np.angle(np.exp(1j * (candidates[ok] - q)))
         assert np.abs(wrapped).max(axis=1).min() < 1e-6
+
+
+def test_the_ik_of_one_pose_orders_its_solutions_as_the_batch_does(sim):
+    """A controller's query (one pose, roll fixed) shifts, filters and orders its solutions on
+    Python floats; the batch (roll-free views) does it in numpy. Same rule, same answers:
+    references off by whole turns and joint limits tight enough to drop some solutions."""
+    arm = sim[2]
+    arm.lower, arm.upper = arm.lower.copy(), arm.upper.copy()
+    arm.lower[0], arm.upper[0] = -2.5, 4.0  # some shifted solutions fall outside
+    rng = np.random.default_rng(5)
+    compared = dropped = 0
+    for q in rng.uniform(-np.pi, np.pi, (200, 6)):
+        pose = flange_pose_in_base(q)
+        reference = q + rng.normal(scale=0.5, size=6) + 2 * np.pi * rng.integers(-1, 2, size=6)
+        solutions, valid = ur_ik(pose)
+        expected = arm._nearest_first(solutions[valid], reference)
+        got = arm._nearest_first_of_few(solutions_of_one(pose), reference)
+        assert len(got) == len(expected)
+        dropped += int(valid.sum()) - len(got)
+        if len(got):
+            np.testing.assert_allclose(np.stack(got), expected, atol=1e-9)
+            compared += len(got)
+    assert compared > 500 and dropped > 20
 
 
 def test_closed_form_ik_of_one_pose_agrees_with_the_batch_branch_by_branch():

@@ -37,7 +37,7 @@ from liuxing_envs.sim.scene import (
     WRIST_CAMERA_SITE,
 )
 from liuxing_envs.sim.stability import diverged_since, divergence_count
-from liuxing_envs.sim.ur_ik import ur_ik
+from liuxing_envs.sim.ur_ik import solutions_of_one, ur_ik
 
 MOTION_MODES = ("kinematic", "dynamic")
 IK_METHODS = ("auto", "analytic", "dls")
@@ -464,27 +464,19 @@ class Arm:
         return self._flange_in_site[sid]
 
     def _solve_analytic(self, target_p, target_r, sid, roll_free, reference, check_collisions):
-        roll = _ROLLS if roll_free else _NO_ROLL
-        site_poses = np.empty((len(roll), 4, 4))
-        site_poses[:, :3, :3] = target_r @ roll  # turning about the site's own z keeps z
-        site_poses[:, :3, 3] = target_p
-        site_poses[:, 3] = _HOMOGENEOUS_ROW
-        flange_in_base = self._base_inverse @ site_poses @ self._flange_from_site(sid)
-        solutions, valid = ur_ik(flange_in_base)
-        candidates = solutions[valid]
-        if len(candidates):
-            turns = np.round((reference - candidates) / (2 * np.pi))
-            shifted = candidates + 2 * np.pi * turns
-            inside = (shifted >= self.lower) & (shifted <= self.upper)
-            candidates = np.where(inside, shifted, candidates)
-            within = (candidates >= self.lower) & (candidates <= self.upper)
-            candidates = candidates[within.all(axis=1)]
-        # np.linalg.norm(axis=1) spelled out (the same sums): it is hot and costs ~10 us.
-        offsets = candidates - reference
-        order = np.argsort(np.sqrt(np.add.reduce(offsets * offsets, axis=1)))
+        flange_in_site = self._flange_from_site(sid)
+        if roll_free:
+            site_poses = np.empty((len(_ROLLS), 4, 4))
+            site_poses[:, :3, :3] = target_r @ _ROLLS  # turning about the site's own z keeps z
+            site_poses[:, :3, 3] = target_p
+            site_poses[:, 3] = _HOMOGENEOUS_ROW
+            solutions, valid = ur_ik(self._base_inverse @ site_poses @ flange_in_site)
+            ordered = self._nearest_first(solutions[valid], reference)
+        else:  # a controller's target: one pose, on Python floats (see ur_ik)
+            flange_in_base = self._base_inverse @ _homogeneous(target_p, target_r) @ flange_in_site
+            ordered = self._nearest_first_of_few(solutions_of_one(flange_in_base), reference)
         tried, colliding = 0, None
-        for index in order:
-            q = candidates[index]
+        for q in ordered:
             tried += 1
             if check_collisions and self.in_collision(q):
                 colliding = q if colliding is None else colliding
@@ -495,6 +487,42 @@ class Arm:
                 False, colliding, sid, target_p, target_r, roll_free, tried, True
             )
         return IKResult(False, reference.copy(), np.inf, np.inf, 0, tried, False)
+
+    def _nearest_first(self, candidates: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """IK solutions (rows) shifted by whole turns towards ``reference`` where that stays
+        within the joint limits, those within the limits, nearest (joint space) first."""
+        if len(candidates):
+            turns = np.round((reference - candidates) / (2 * np.pi))
+            shifted = candidates + 2 * np.pi * turns
+            inside = (shifted >= self.lower) & (shifted <= self.upper)
+            candidates = np.where(inside, shifted, candidates)
+            within = (candidates >= self.lower) & (candidates <= self.upper)
+            candidates = candidates[within.all(axis=1)]
+        # np.linalg.norm(axis=1) spelled out (the same sums): it is hot and costs ~10 us.
+        offsets = candidates - reference
+        return candidates[np.argsort(np.sqrt(np.add.reduce(offsets * offsets, axis=1)))]
+
+    def _nearest_first_of_few(
+        self, solutions: list[tuple[int, list[float]]], reference: np.ndarray
+    ) -> list[np.ndarray]:
+        """:meth:`_nearest_first` of a few solutions (``solutions_of_one``'s), on Python
+        floats: numpy's per-call overhead would cost more than the arithmetic."""
+        towards, lower, upper = reference.tolist(), self.lower.tolist(), self.upper.tolist()
+        kept = []
+        for _, angles in solutions:
+            joints = []
+            for angle, near, low, high in zip(angles, towards, lower, upper, strict=True):
+                shifted = angle + _TWO_PI * round((near - angle) / _TWO_PI)
+                if low <= shifted <= high:
+                    angle = shifted
+                elif not low <= angle <= high:
+                    break
+                joints.append(angle)
+            else:
+                distance2 = sum((a - r) * (a - r) for a, r in zip(joints, towards, strict=True))
+                kept.append((distance2, joints))
+        kept.sort(key=lambda pair: pair[0])
+        return [np.array(joints) for _, joints in kept]
 
     def _ik_result(self, success, q, sid, target_p, target_r, roll_free, attempts, colliding):
         # The collision scene holds the same arm, so its kinematics give the same site pose;
@@ -746,7 +774,6 @@ def _rolls_about_z(angles: np.ndarray) -> np.ndarray:
 
 #: The rotations about the site's z axis the analytic IK tries when the roll is free.
 _ROLLS = _rolls_about_z(np.linspace(0, 2 * np.pi, IK_ROLL_SAMPLES, endpoint=False))
-_NO_ROLL = _rolls_about_z(np.zeros(1))
 
 
 def _homogeneous(position, rotation) -> np.ndarray:
@@ -803,6 +830,7 @@ def _as_rotation(value) -> np.ndarray:
 
 _IDENTITY3 = np.eye(3)
 _HOMOGENEOUS_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_TWO_PI = 2 * np.pi
 #: np.allclose's tolerance against the identity: atol + rtol * |I| (rtol = 1e-5).
 _ORTHONORMAL_TOLERANCE = 1e-6 + 1e-5 * _IDENTITY3
 

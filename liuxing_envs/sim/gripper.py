@@ -79,7 +79,8 @@ class Gripper:
 
     def command(self, opening: float) -> None:
         """Set the servo target: the pad distance to close or open to (m), clipped to range."""
-        half = 0.5 * float(np.clip(opening, 0.0, MAX_OPENING))
+        # Floats, not np.clip: this runs every control step, and np.clip costs ~10 µs a call.
+        half = 0.5 * min(max(float(opening), 0.0), MAX_OPENING)
         self.data.ctrl[self._actuators] = half
 
     def grip(self, force: float) -> None:

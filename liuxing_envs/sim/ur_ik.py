@@ -59,7 +59,9 @@ def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"flange_poses must be (N, 4, 4), got {poses.shape}")
     n = len(poses)
     if n == 1:
-        solutions = _solutions_of_one(poses[0])
+        solutions = np.full((1, 8, 6), np.nan)
+        for row, angles in solutions_of_one(poses[0]):
+            solutions[0, row] = angles
         return solutions, np.isfinite(solutions).all(axis=2)
     signs = _SIGNS
 
@@ -140,9 +142,11 @@ def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return solutions, valid
 
 
-def _solutions_of_one(pose: np.ndarray) -> np.ndarray:
-    """``ur_ik`` of one pose: (1, 8, 6), the same formulas and branch order, on floats."""
-    solutions = np.full((1, 8, 6), np.nan)
+def solutions_of_one(pose: np.ndarray) -> list[tuple[int, list[float]]]:
+    """``ur_ik`` of one (4, 4) pose on Python floats, the same formulas: its valid solutions
+    as ``(row, joint angles)`` in row (branch) order, where ``row`` is the solution's index
+    among the batch's eight."""
+    solutions: list[tuple[int, list[float]]] = []
     if not np.isfinite(pose).all():
         return solutions
     (x0, y0, z0, px), (x1, y1, z1, py), (x2, y2, z2, pz), _ = pose.tolist()
@@ -190,10 +194,11 @@ def _solutions_of_one(pose: np.ndarray) -> np.ndarray:
                     continue
                 theta2 = math.asin(sin2) - offset
                 theta4 = column - theta2 - theta3
-                solutions[0, row] = [
+                angles = [
                     angle if -math.pi <= angle <= math.pi else _wrapped(angle)
                     for angle in (theta1, theta2, theta3, theta4, theta5, theta6)
                 ]
+                solutions.append((row, angles))
     return solutions
 
 
