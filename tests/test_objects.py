@@ -310,6 +310,68 @@ def test_user_mesh_cleanup_drops_degenerate_triangles_and_fixes_inward_winding(t
     assert mesh.extents.max() == pytest.approx(0.15)
 
 
+def _write_ply(path, vertices, faces) -> None:
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(np.asarray(vertices, dtype=float)),
+        o3d.utility.Vector3iVector(np.asarray(faces, dtype=np.int32)),
+    )
+    assert o3d.io.write_triangle_mesh(str(path), mesh)
+
+
+def test_user_meshes_are_wound_outward_part_by_part_and_triangle_by_triangle(tmp_path):
+    """Ground truth on an inward-wound part counts as unobservable, so every part of a file
+    must come out wound outward whatever the file mixed: one part inward, every other
+    triangle reversed, each triangle also present reversed (a double-sided export)."""
+    ball = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution=12)
+    box = o3d.geometry.TriangleMesh.create_box(1.0, 1.0, 1.0).translate((1.5, -0.5, -0.5))
+    ball_v, ball_f = np.asarray(ball.vertices), np.asarray(ball.triangles)
+    box_v, box_f = np.asarray(box.vertices), np.asarray(box.triangles) + len(ball_v)
+    vertices = np.vstack([ball_v, box_v])
+    _write_ply(tmp_path / "ok.ply", vertices, np.vstack([ball_f, box_f]))
+    outward = load_mesh_file(tmp_path / "ok.ply")
+    mixed = ball_f.copy()
+    mixed[::2] = mixed[::2, ::-1]
+    cases = {
+        "handle_inward": np.vstack([ball_f, box_f[:, ::-1]]),
+        "mixed": np.vstack([mixed, box_f]),
+        "double_sided": np.vstack([ball_f, box_f, ball_f[:, ::-1], box_f[:, ::-1]]),
+    }
+    for name, faces in cases.items():
+        _write_ply(tmp_path / f"{name}.ply", vertices, faces)
+        mesh = load_mesh_file(tmp_path / f"{name}.ply")
+        assert len(mesh.faces) == len(outward.faces), name
+        assert mesh.volume == pytest.approx(outward.volume, rel=1e-9), name
+        assert sorted(map(tuple, np.sort(mesh.faces, axis=1))) == sorted(
+            map(tuple, np.sort(outward.faces, axis=1))
+        )
+        seen = observable_samples(mesh, 1.0, 2048).observable.mean()
+        assert seen == pytest.approx(observable_samples(outward, 1.0, 2048).observable.mean())
+
+
+def test_an_open_user_mesh_is_oriented_the_same_wherever_the_file_puts_it(tmp_path):
+    dome = o3d.geometry.TriangleMesh.create_sphere(1.0, resolution=12)
+    vertices, faces = np.asarray(dome.vertices), np.asarray(dome.triangles)
+    upper = faces[(vertices[faces][:, :, 2] >= -1e-9).all(axis=1)]  # the open upper half
+    meshes = []
+    for offset in (0.0, -50.0, 300.0):
+        _write_ply(tmp_path / f"dome{offset}.ply", vertices + [0, 0, offset], upper[:, ::-1])
+        meshes.append(load_mesh_file(tmp_path / f"dome{offset}.ply"))
+    for mesh in meshes[1:]:
+        np.testing.assert_array_equal(mesh.faces, meshes[0].faces)
+    assert observable_samples(meshes[0], 1.0, 2048).observable.mean() > 0.9  # seen from above
+
+
+def test_obj_face_indices_count_from_one_and_a_bom_is_skipped(tmp_path):
+    tetrahedron = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    path = tmp_path / "bom.obj"
+    path.write_text(tetrahedron, encoding="utf-8-sig")
+    assert len(load_mesh_file(path).vertices) == 4
+    path = tmp_path / "zero.obj"
+    path.write_text(tetrahedron.replace("f 2 3 4", "f 0 3 4") + "v 9 9 9\n")
+    with pytest.raises(ValueError, match=r"zero.obj, line 8: .*vertex 0 \(OBJ counts"):
+        load_mesh_file(path)
+
+
 def test_user_mesh_errors_are_clear(tmp_path):
     missing = tmp_path / "nowhere.obj"
     with pytest.raises(FileNotFoundError, match="nowhere.obj"):

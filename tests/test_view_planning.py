@@ -150,6 +150,50 @@ def test_user_meshes_load(tmp_path):
         ViewPlanningEnv(objects=[str(tmp_path / "missing.obj")])
 
 
+TETRAHEDRON_OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+
+
+def test_user_meshes_with_the_same_stem_are_named_by_their_paths(tmp_path):
+    # ShapeNet names every model models/model_normalized.obj; a user's mug.obj meets "mug".
+    paths = []
+    for folder in ("chair1", "chair2"):
+        (tmp_path / folder / "models").mkdir(parents=True)
+        paths.append(tmp_path / folder / "models" / "model_normalized.obj")
+        paths[-1].write_text(TETRAHEDRON_OBJ)
+    (tmp_path / "mug.obj").write_text(TETRAHEDRON_OBJ)
+    env = ViewPlanningEnv(
+        objects=[*map(str, paths), "mug", str(tmp_path / "mug.obj")],
+        scales=(1.0,),
+        coverage_samples=256,
+    )
+    assert env.object_names == (
+        "chair1/models/model_normalized.obj",
+        "chair2/models/model_normalized.obj",
+        "mug",
+        "mug.obj",
+    )
+    _, info = env.reset(seed=0, options={"object": "chair2/models/model_normalized.obj"})
+    assert info["object"] == "chair2/models/model_normalized.obj" and info["coverage"] > 0
+    env.close()
+    for twice in ([str(paths[0]), str(paths[0])], ["box", "box"]):
+        with pytest.raises(ValueError, match="lists the same object more than once"):
+            ViewPlanningEnv(objects=twice, scales=(1.0,), coverage_samples=256)
+
+
+def test_an_object_no_taller_than_the_table_crop_is_refused(tmp_path):
+    import open3d as o3d
+
+    card = o3d.geometry.TriangleMesh.create_box(0.297, 0.210, 0.001)  # an A4 card, lying flat
+    card.compute_triangle_normals()
+    o3d.io.write_triangle_mesh(str(tmp_path / "card.stl"), card)
+    with pytest.raises(ValueError, match=r"'card' stands 0.40 mm tall at scale 0.8.*cropped"):
+        ViewPlanningEnv(objects=[str(tmp_path / "card.stl")], coverage_samples=256)
+    env = ViewPlanningEnv(
+        objects=[str(tmp_path / "card.stl")], scales=(1.0,), table_crop_height=0.0002
+    )
+    env.close()
+
+
 def test_procedural_shapes_are_scanned_like_library_objects():
     names = ["procedural_3", "procedural_40", "box"]
     env = ViewPlanningEnv(objects=names, scales=(1.0,), coverage_samples=1024)

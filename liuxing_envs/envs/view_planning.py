@@ -6,6 +6,7 @@ import math
 import os
 import weakref
 from collections.abc import Sequence
+from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -46,6 +47,7 @@ from liuxing_envs.sim.objects import (
     OBJECT_SETS,
     OBSERVABLE_CACHE_SIZE,
     PROCEDURAL_PREFIX,
+    ObjectMesh,
     get_object,
     is_object_name,
     load_mesh_file,
@@ -217,7 +219,9 @@ class ViewPlanningEnv(gym.Env):
     it; "all" is the library's 22 families; "procedural" is 64 seeded random composites of the
     train families' parts, a larger training set, see ``liuxing_envs.sim.objects``),
     ``objects`` (list of library names, ``procedural_<n>`` shape names (n < 1,000,000) or mesh
-    files .obj/.stl/.ply, scaled to ``USER_MESH_SIZE``; overrides ``object_set``), ``scales``,
+    files .obj/.stl/.ply, scaled to ``USER_MESH_SIZE`` and named after the file's stem or,
+    where names clash, by as much of the path as tells them apart; each must stand taller
+    than ``table_crop_height`` at the smallest scale; overrides ``object_set``), ``scales``,
     ``object_region``, ``resolution`` (square depth image side),
     ``depth_backend`` ({"auto", "gl", "raycast", "embree"}; embree is the fastest, see
     ``liuxing_envs.sim.camera``), ``depth_noise`` (a ``DepthNoise`` or None),
@@ -353,6 +357,16 @@ class ViewPlanningEnv(gym.Env):
         meshes = _load_objects(object_set, objects)
         self.object_names = tuple(mesh.name for mesh in meshes)
         self.scales = tuple(float(s) for s in scales)
+        for mesh in meshes:
+            height = min(self.scales) * float(mesh.extents[2])
+            if height <= table_crop_height:
+                raise ValueError(
+                    f"objects: {mesh.name!r} stands {height * 1000:.2f} mm tall at scale "
+                    f"{min(self.scales)}, no taller than table_crop_height "
+                    f"({table_crop_height * 1000:.2f} mm): every point of it would be cropped "
+                    "as table, so no view could cover it. Stand it on an edge (turn it in its "
+                    "file) or lower table_crop_height."
+                )
         self._stage = ObjectStage(meshes, self.scales)
         # Placements keep the whole object inside the workspace crop: points outside it are
         # dropped, which would cap coverage below what the views saw.
@@ -933,7 +947,40 @@ def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
                 f"({', '.join(OBJECT_SETS['all'])}) or a procedural shape "
                 f"({PROCEDURAL_PREFIX}<n>), and as a mesh file: {error}"
             ) from error
-    return meshes
+    return _named_apart(items, meshes)
+
+
+def _named_apart(items: list, meshes: list[ObjectMesh]) -> list[ObjectMesh]:
+    """``meshes`` (loaded from ``items``) renamed where their names clash: a mesh file is then
+    named by as much of its path as tells it apart, its file name and then its folders
+    (``box.stl`` and ``box.ply``; ``chair1/models/model_normalized.obj``, as in ShapeNet).
+    An item listed twice, which no path tells apart, is refused."""
+    paths = [None if is_object_name(str(item)) else Path(item).resolve() for item in items]
+    levels = [0] * len(items)
+
+    def name(index: int) -> str:
+        path, level = paths[index], levels[index]
+        if path is None or level == 0:
+            return meshes[index].name
+        return "/".join(path.parts[-level:])
+
+    while True:
+        names = [name(index) for index in range(len(items))]
+        clashing = [index for index, n in enumerate(names) if names.count(n) > 1]
+        if not clashing:
+            break
+        longer = [
+            i for i in clashing if paths[i] is not None and levels[i] < len(paths[i].parts) - 1
+        ]
+        if not longer:
+            twice = [str(items[i]) for i in clashing if names[i] == names[clashing[0]]]
+            raise ValueError(f"objects lists the same object more than once: {twice}")
+        for index in longer:
+            levels[index] += 1
+    return [
+        mesh if mesh.name == new else replace(mesh, name=new)
+        for mesh, new in zip(meshes, names, strict=True)
+    ]
 
 
 def _candidate_views(

@@ -906,9 +906,12 @@ def _make_procedural(index: int) -> ObjectMesh:
 
 def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> ObjectMesh:
     """Load a user's ``.obj``, ``.stl`` or ``.ply`` triangle mesh as an object named after the
-    file's stem: duplicated vertices and degenerate or repeated triangles removed, scaled so
-    its largest bounding-box side is ``size`` (m), centred in x and y, resting on z = 0, and
-    flipped if its triangles are wound inward (negative enclosed volume)."""
+    file's stem: duplicated vertices and degenerate or repeated triangles removed (a triangle
+    repeated with its winding reversed too), scaled so its largest bounding-box side is
+    ``size`` (m), centred in x and y, resting on z = 0, and wound outward: each connected
+    part's triangles are made to agree with their neighbours' winding, and the part is
+    flipped if they enclose a negative volume (taken about the part's centre, so that an open
+    part is judged the same wherever the file puts it)."""
     path = Path(path)
     if not (np.isfinite(size) and size > 0):
         raise ValueError(f"size must be a positive length in metres, got {size!r}")
@@ -948,6 +951,9 @@ def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> Ob
     faces = faces[keep]
     if len(faces) == 0 or extent <= 0:
         raise ValueError(f"mesh file {path} has no usable triangles (all degenerate)")
+    # A double-sided mesh repeats each triangle reversed: keep the first of each vertex set.
+    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    faces = faces[np.sort(first)]
     used, faces = np.unique(faces, return_inverse=True)
     vertices = vertices[used] * (size / extent)
     faces = faces.reshape(-1, 3)
@@ -958,11 +964,29 @@ def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> Ob
             f"mesh file {path} is flat: all its vertices lie in one plane, so it encloses no "
             "volume; an object must be a solid (a sheet needs a thickness)"
         )
-    if _signed_volume(vertices, faces) < 0:
-        faces = faces[:, ::-1]
+    faces = _wound_outward(vertices, faces)
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     vertices -= [(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, low[2]]
     return ObjectMesh(path.stem, vertices, faces)
+
+
+def _wound_outward(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``faces`` with each connected part wound consistently (open3d's ``orient_triangles``,
+    where the part is orientable) and outward: a file may mix parts, or triangles, wound
+    either way, and ground truth on an inward part would count as unobservable."""
+    mesh = o3d.geometry.TriangleMesh(
+        o3d.utility.Vector3dVector(vertices), o3d.utility.Vector3iVector(faces.astype(np.int32))
+    )
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        mesh.orient_triangles()  # False where a part is not orientable: it is left as it was
+    faces = np.asarray(mesh.triangles, dtype=np.int64).copy()
+    labels = _face_components(faces, len(vertices))
+    for label in np.unique(labels):
+        part = labels == label
+        centre = vertices[np.unique(faces[part])].mean(axis=0)
+        if _signed_volume(vertices - centre, faces[part]) < 0:
+            faces[part] = faces[part][:, ::-1]
+    return faces
 
 
 def _read_obj(path: Path) -> o3d.geometry.TriangleMesh:
@@ -970,7 +994,7 @@ def _read_obj(path: Path) -> o3d.geometry.TriangleMesh:
     convex polygons); texture, normal, line and group records are ignored."""
     vertices: list[list[float]] = []
     triangles: list[tuple[int, int, int]] = []
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = path.read_text(encoding="utf-8-sig", errors="replace")  # -sig: a leading BOM
     for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
         if not fields or fields[0] not in ("v", "f"):
@@ -983,9 +1007,11 @@ def _read_obj(path: Path) -> o3d.geometry.TriangleMesh:
                 continue
             # "f a b c ...", each corner "v", "v/vt", "v//vn" or "v/vt/vn"; negative is relative.
             corners = [int(field.split("/")[0]) for field in fields[1:]]
+            if 0 in corners:
+                raise ValueError("a face refers to vertex 0 (OBJ counts vertices from 1)")
             corners = [c - 1 if c > 0 else len(vertices) + c for c in corners]
             if any(c < 0 for c in corners):
-                raise ValueError("a face refers to vertex 0 or before the first vertex")
+                raise ValueError("a face refers to a vertex before the first one")
         except ValueError as error:
             raise ValueError(
                 f"mesh file {path}, line {number}: {error}: {line.strip()!r}"
