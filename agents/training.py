@@ -367,17 +367,18 @@ class _Periodic(BaseCallback):
 class RolloutBoundary(BaseCallback):
     """The step count at which the model's weights were last consistent with its counter.
 
-    An on-policy algorithm (PPO) learns only from whole rollouts, and a half-collected one
-    is lost when training stops; a checkpoint taken then is labelled with the steps of the
-    last whole rollout, so a resumed run collects the same rollouts and ends on the same step
-    count as one never interrupted. Off-policy algorithms (SAC) keep every step in their
-    replay buffer: their boundary is the current step."""
+    An on-policy algorithm (PPO) learns only from whole rollouts, and a rollout not yet
+    learned from (half collected, or collected but its update failed) is lost when training
+    stops; a checkpoint taken then is labelled with the steps at the start of that rollout,
+    after the last update, so a resumed run collects the same rollouts and ends on the same
+    step count as one never interrupted. Off-policy algorithms (SAC) keep every step in
+    their replay buffer: their boundary is the current step."""
 
     def _on_training_start(self) -> None:
         self.steps = self.model.num_timesteps
         self._every_step = not isinstance(self.model, OnPolicyAlgorithm)
 
-    def _on_rollout_end(self) -> None:
+    def _on_rollout_start(self) -> None:
         self.steps = self.model.num_timesteps
 
     def _on_step(self) -> bool:

@@ -514,7 +514,8 @@ def test_a_failure_while_learning_saves_a_checkpoint_to_resume_from(tmp_path, mo
             + ["--final-episodes", "0"]
         )
     assert f"continue with: python train.py --resume {run_dir}" in str(error.value)
-    assert 0 < run_folder.latest_checkpoint(run_dir) <= calls[1]
+    # Labelled with the steps its weights learned from: the failed update's rollout is lost.
+    assert run_folder.latest_checkpoint(run_dir) == calls[0] < calls[1]
 
 
 def test_a_run_with_the_largest_seed_resumes(tmp_path):
