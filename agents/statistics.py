@@ -6,8 +6,13 @@
   aggregate figures of Agarwal et al., "Deep RL at the edge of the statistical precipice"
   (NeurIPS 2021), for several training seeds. Scores are ``(runs, tasks)`` matrices; here a
   run is a training seed and a task is one seeded evaluation episode (one object or
-  instrument in one pose), so the bootstrap resamples seeds within each episode and the
-  interval says how much a new set of seeds could move the figure on these episodes.
+  instrument in one pose). The stratified bootstrap resamples seeds independently within
+  each episode, as rliable does where each (run, game) pair is its own training run. Here a
+  seed's policy plays every episode, so that mixes seeds within a resample and leaves most of
+  the seed-to-seed spread out: it is kept for comparison with published figures.
+- :func:`run_bootstrap_ci`: the interval for "how much could a new set of seeds move the
+  figure on these episodes": whole seeds resampled with replacement, each with all its
+  episodes.
 
 The aggregate functions follow the rliable library's definitions. They are written out here
 because rliable 1.2.0 (its latest release) cannot be imported next to pandas 3 (its bootstrap
@@ -90,6 +95,22 @@ def stratified_bootstrap_ci(scores, statistic=iqm, seed: int = 0) -> tuple[float
     for index in range(BOOTSTRAP_RESAMPLES):
         rows = rng.integers(runs, size=(runs, tasks))
         samples[index] = statistic(scores[rows, columns])
+    return _percentiles(samples)
+
+
+def run_bootstrap_ci(scores, statistic=np.mean, seed: int = 0) -> tuple[float, float] | None:
+    """95% percentile interval of ``statistic`` over a ``(runs, tasks)`` score matrix, resampling
+    whole runs (rows) with replacement; None for a single run (see :func:`bootstrap_ci`)."""
+    scores = np.asarray(scores, dtype=float)
+    if scores.ndim != 2 or 0 in scores.shape:
+        raise ValueError(f"scores must be a non-empty (runs, tasks) matrix, got {scores.shape}")
+    runs = len(scores)
+    if runs == 1:
+        return None
+    rng = np.random.default_rng(seed)
+    samples = np.array(
+        [statistic(scores[rng.integers(runs, size=runs)]) for _ in range(BOOTSTRAP_RESAMPLES)]
+    )
     return _percentiles(samples)
 
 

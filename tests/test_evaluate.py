@@ -19,6 +19,7 @@ from agents.statistics import (
     interval_text,
     iqm,
     probability_of_improvement,
+    run_bootstrap_ci,
     stratified_bootstrap_ci,
     wilson_interval,
 )
@@ -88,6 +89,20 @@ def test_stratified_bootstrap_resamples_runs_within_each_task():
     low, high = stratified_bootstrap_ci(noisy, iqm)
     assert low < iqm(noisy) < high
     assert high - low < 0.2
+
+
+def test_the_seed_bootstrap_resamples_whole_seeds_and_keeps_their_spread():
+    # Six seeds, each a fixed offset on every one of 100 episodes: the spread a new set of
+    # seeds would show. Mixing seeds within each episode (stratified) averages it away.
+    rng = np.random.default_rng(1)
+    episodes = rng.normal(0.85, 0.05, size=100)
+    offsets = np.array([-0.012, -0.006, -0.002, 0.003, 0.007, 0.010])
+    scores = offsets[:, None] + episodes[None, :]
+    low, high = run_bootstrap_ci(scores, np.mean)
+    assert (low, high) == pytest.approx(bootstrap_ci(scores.mean(axis=1)))  # the same resamples
+    stratified_low, stratified_high = stratified_bootstrap_ci(scores, np.mean)
+    assert high - low > 2 * (stratified_high - stratified_low)
+    assert run_bootstrap_ci(scores[:1], np.mean) is None
 
 
 def test_probability_of_improvement_counts_wins_and_half_ties():
@@ -212,6 +227,7 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     finals = [e["coverage"] for c in section["contestants"][:2] for e in c["episodes"]]
     assert min(finals) <= aggregate["iqm"] <= max(finals)
     assert_ci_holds_mean({"mean": aggregate["iqm"], "ci95": aggregate["iqm_ci95"]})
+    assert_ci_holds_mean({"mean": aggregate["mean"], "ci95": aggregate["mean_seed_ci95"]})
     improvement = aggregate["probability_of_improvement"]
     assert improvement["over"] == "four-view" and 0.0 <= improvement["value"] <= 1.0
     policy = [e["coverage"] for e in section["contestants"][0]["episodes"]]
