@@ -59,6 +59,8 @@ def interval_text(ci: Sequence[float] | None, scale: float = 1.0, digits: int = 
 
 def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
     """95% Wilson score interval of a success rate."""
+    if not 0 <= successes <= trials:
+        raise ValueError(f"need 0 <= successes <= trials, got {successes} of {trials}")
     if trials == 0:
         return 0.0, 1.0
     p = successes / trials
@@ -131,7 +133,8 @@ def probability_of_improvement(scores_x, scores_y) -> float:
 
 def probability_of_improvement_ci(scores_x, scores_y, seed: int = 0) -> tuple[float, float]:
     """95% stratified-bootstrap interval of :func:`probability_of_improvement`, resampling the
-    runs of both within each task."""
+    runs of both within each task; 1,000 resamples (a tenth of the other intervals': each
+    costs a comparison of every pair of runs on every task)."""
     x = np.asarray(scores_x, dtype=float)
     y = np.asarray(scores_y, dtype=float)
     rng = np.random.default_rng(seed)

@@ -76,6 +76,12 @@ def test_one_value_has_no_bootstrap_interval_and_reports_say_so():
     assert interval_text((0.01, 0.02), scale=1000, digits=1) == "[10.0, 20.0]"
 
 
+def test_a_wilson_interval_of_impossible_counts_is_refused():
+    for successes, trials in ((3, 2), (-1, 5)):
+        with pytest.raises(ValueError, match=f"got {successes} of {trials}"):
+            wilson_interval(successes, trials)
+
+
 def test_iqm_is_the_mean_of_the_middle_half():
     assert iqm([0, 1, 2, 3, 4, 5, 6, 100]) == pytest.approx(np.mean([2, 3, 4, 5]))
     assert iqm([[1.0, 1.0], [1.0, 1.0]]) == 1.0
