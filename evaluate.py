@@ -12,10 +12,12 @@ Sources are run folders (their best model; --final-model for the last one), mode
 (a zip inside a run folder takes the run's config; a lone one needs --env, and its
 vecnormalize.pkl beside it or --raw-observations) or baseline names:
 ViewPlanning-v0: four-view, uniform, random, greedy-oracle (privileged: it reads the ground
-truth); InstrumentGrasp-v0: scripted-grasp, squeeze, random. Several run folders of one
-algorithm are aggregated as training seeds (IQM, stratified bootstrap, probability of
-improvement over the baseline). Episodes are the held-out objects / instruments unless
---object-set / --instrument-set say otherwise.
+truth); InstrumentGrasp-v0: scripted-grasp, squeeze, random, privileged-grasp (the script
+reading the handle from the simulator). Several run folders of one algorithm with the same
+env kwargs are aggregated as training seeds (IQM and mean, each with a bootstrap interval
+over seeds and rliable's stratified one; probability of improvement over the baseline).
+Episodes are the held-out objects / instruments unless --object-set / --instrument-set say
+otherwise.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Train PPO or SAC on a liuxing_envs environment.
 
-    python train.py                                   # ViewPlanning-v0, PPO, a few minutes
+    python train.py                                   # ViewPlanning-v0, PPO, ~15 min on 2 cores
     python train.py --env InstrumentGrasp-v0 --algo sac --seed 1 -n 300000
     python train.py --algo ppo --hyperparams learning_rate=1e-4 policy_kwargs.net_arch=[64,64]
     python train.py --env-kwargs view_budget=6 --eval-freq 2000

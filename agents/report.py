@@ -286,6 +286,11 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
     for (group, _), indices in groups.items():
         members = [results[i] for i in indices]
         if len(members) < 2:
+            if sum(key[0] == group for key in groups) > 1:
+                section["aggregate_notes"].append(
+                    f"{members[0]['label']}: not aggregated with the other {group} runs, it ran "
+                    "with other env kwargs"
+                )
             continue
         seeds = [m["training_seed"] for m in members]
         labels = ", ".join(m["label"] for m in members)

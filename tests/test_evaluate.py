@@ -253,6 +253,26 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     assert section["aggregates"] == [] and "[2, 2]" in section["aggregate_notes"][0]
     assert "Not aggregated:" in (again / "report.md").read_text()
 
+    # A seed that ran with other env kwargs is left out of the others' aggregate, and said so.
+    other = tmp_path / "ppo_seed4"
+    shutil.copytree(runs[0], other)
+    config = other / run_folder.CONFIG
+    text = re.sub(r"(?m)^seed: \d+$", "seed: 4", config.read_text(), count=1)
+    config.write_text(
+        text.replace(
+            "  action_mode: continuous\n", "  action_mode: continuous\n  motion_cost: 0.02\n"
+        )
+    )
+    mixed = tmp_path / "mixed"
+    run_script(
+        *("evaluate.py", *runs, str(other), "--baselines", "none", "--episodes", "2"),
+        *("--reconstruct-episodes", "0", "--out", str(mixed)),
+    )
+    section = read_report(mixed)["environments"]["ViewPlanning-v0"]
+    assert [len(a["runs"]) for a in section["aggregates"]] == [2]
+    (note,) = section["aggregate_notes"]
+    assert "not aggregated with the other ppo runs, it ran with other env kwargs" in note
+
 
 # --- bad input --------------------------------------------------------------------------------
 
