@@ -6,6 +6,7 @@ Figures are medians over repeats on whatever machine runs it.
 
 from __future__ import annotations
 
+import argparse
 import os
 import platform
 import time
@@ -46,6 +47,9 @@ def hemisphere():
 
 
 def main() -> None:
+    argparse.ArgumentParser(
+        prog="python -m benchmarks.foundation", description=__doc__.splitlines()[0]
+    ).parse_args()  # no options: --help, and a clear error on anything else
     model = load_scene_model()
     data = mujoco.MjData(model)
     reset_to_home(model, data)
