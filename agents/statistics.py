@@ -80,6 +80,8 @@ def iqm(scores) -> float:
     flat = np.sort(np.asarray(scores, dtype=float).ravel())
     if flat.size == 0:
         raise ValueError("iqm needs at least one score")
+    if np.isnan(flat[-1]):  # sorted last, a NaN would be trimmed away unseen
+        return math.nan
     cut = int(0.25 * flat.size)
     return float(flat[cut : flat.size - cut].mean())
 
@@ -126,6 +128,8 @@ def probability_of_improvement(scores_x, scores_y) -> float:
         raise ValueError(
             f"need (runs, tasks) matrices over the same tasks, got {x.shape}, {y.shape}"
         )
+    if np.isnan(x).any() or np.isnan(y).any():
+        return math.nan  # a NaN compares as neither above nor equal: it would count as a loss
     above = (x[:, None, :] > y[None, :, :]).mean(axis=(0, 1))
     ties = (x[:, None, :] == y[None, :, :]).mean(axis=(0, 1))
     return float(np.mean(above + 0.5 * ties))

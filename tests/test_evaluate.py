@@ -6,6 +6,7 @@ a tiny SAC run trained here (with observation normalisation), for a few episodes
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 from pathlib import Path
@@ -85,6 +86,14 @@ def test_a_wilson_interval_of_impossible_counts_is_refused():
 def test_iqm_is_the_mean_of_the_middle_half():
     assert iqm([0, 1, 2, 3, 4, 5, 6, 100]) == pytest.approx(np.mean([2, 3, 4, 5]))
     assert iqm([[1.0, 1.0], [1.0, 1.0]]) == 1.0
+
+
+def test_a_nan_score_gives_nan_aggregates_not_a_number_that_hides_it():
+    # Sorted last, a NaN used to be trimmed out of the IQM, and it counted as a loss in P(X > Y).
+    assert math.isnan(iqm([1.0, math.nan, 2.0, 3.0]))
+    with_nan = np.array([[0.9, math.nan], [0.8, 0.7]])
+    assert math.isnan(probability_of_improvement(with_nan, np.array([[0.5, 0.5]])))
+    assert math.isnan(probability_of_improvement(np.array([[0.5, 0.5]]), with_nan))
 
 
 def test_stratified_bootstrap_resamples_runs_within_each_task():
