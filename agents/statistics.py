@@ -86,12 +86,17 @@ def iqm(scores) -> float:
     return float(flat[cut : flat.size - cut].mean())
 
 
-def stratified_bootstrap_ci(scores, statistic=iqm, seed: int = 0) -> tuple[float, float]:
-    """95% percentile interval of ``statistic`` over a ``(runs, tasks)`` score matrix, resampling
-    runs with replacement independently within each task (rliable's ``StratifiedBootstrap``)."""
+def _score_matrix(scores) -> np.ndarray:
     scores = np.asarray(scores, dtype=float)
     if scores.ndim != 2 or 0 in scores.shape:
         raise ValueError(f"scores must be a non-empty (runs, tasks) matrix, got {scores.shape}")
+    return scores
+
+
+def stratified_bootstrap_ci(scores, statistic=iqm, seed: int = 0) -> tuple[float, float]:
+    """95% percentile interval of ``statistic`` over a ``(runs, tasks)`` score matrix, resampling
+    runs with replacement independently within each task (rliable's ``StratifiedBootstrap``)."""
+    scores = _score_matrix(scores)
     runs, tasks = scores.shape
     rng = np.random.default_rng(seed)
     columns = np.arange(tasks)
@@ -105,9 +110,7 @@ def stratified_bootstrap_ci(scores, statistic=iqm, seed: int = 0) -> tuple[float
 def run_bootstrap_ci(scores, statistic=np.mean, seed: int = 0) -> tuple[float, float] | None:
     """95% percentile interval of ``statistic`` over a ``(runs, tasks)`` score matrix, resampling
     whole runs (rows) with replacement; None for a single run (see :func:`bootstrap_ci`)."""
-    scores = np.asarray(scores, dtype=float)
-    if scores.ndim != 2 or 0 in scores.shape:
-        raise ValueError(f"scores must be a non-empty (runs, tasks) matrix, got {scores.shape}")
+    scores = _score_matrix(scores)
     runs = len(scores)
     if runs == 1:
         return None

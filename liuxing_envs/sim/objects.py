@@ -985,13 +985,12 @@ def _wound_outward(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
         with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
             mesh.orient_triangles()  # False where a part is not orientable: left as it was
         faces = np.asarray(mesh.triangles, dtype=np.int64)
-    faces = faces.copy()
+    faces = faces.copy()  # parts are flipped in place
     labels = _face_components(faces, len(vertices))
     for label in np.unique(labels):
         part = labels == label
         centre = vertices[np.unique(faces[part])].mean(axis=0)
-        if _signed_volume(vertices - centre, faces[part]) < 0:
-            faces[part] = faces[part][:, ::-1]
+        faces[part] = _orient_outward(vertices - centre, faces[part])
     return faces
 
 
