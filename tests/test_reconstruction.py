@@ -236,3 +236,32 @@ def test_invalid_input_is_rejected():
         reconstruct(np.full((10, 3), np.nan))
     with pytest.raises(ValueError, match="density_quantile"):
         reconstruct(np.zeros((10, 3)), density_quantile=1.0)
+
+
+@pytest.mark.parametrize(
+    ("keyword", "value"),
+    [
+        ("normal_max_nn", 0),  # crashed the process inside open3d
+        ("crop_margin", -1.0),  # silently turned cropping off
+        ("crop_margin", float("nan")),  # silently emptied the mesh
+        ("poisson_depth", 0),
+        ("poisson_scale", 0.5),  # every point outside Poisson's cube: an empty mesh
+        ("poisson_threads", 0),
+        ("outlier_std", 0.0),
+        ("outlier_neighbors", 2.5),
+        ("normal_radius", -0.01),
+        ("voxel_size", float("inf")),
+        ("min_mesh_points", -1),
+    ],
+)
+def test_each_bad_keyword_is_named(keyword, value):
+    points = sphere(np.random.default_rng(0), 500)
+    with pytest.raises(ValueError, match=keyword):
+        reconstruct(points, **{keyword: value})
+
+
+def test_a_flat_cloud_without_crop_margin_gives_no_mesh_and_says_why():
+    flat = np.c_[np.mgrid[0:20, 0:20].reshape(2, -1).T * 0.001, np.zeros(400)]
+    result = reconstruct(flat, voxel_size=0.0, poisson_depth=DEPTH)
+    assert not result.has_mesh
+    assert "flat" in result.message and "\x1b" not in result.message

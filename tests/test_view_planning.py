@@ -493,6 +493,12 @@ def test_reconstruction_of_a_four_view_scan_is_scored_and_saved(tmp_path):
     assert metrics["chamfer"] < 0.01  # metres
     assert 0.0 <= metrics["fscore"] <= 1.0 and metrics["precision"] > 0.5
     assert {p.suffix for p in tmp_path.iterdir()} >= {".ply", ".pcd"}
+    # The views are the episode's: a caller's own are refused by name (was a TypeError of
+    # "multiple values"), as is a keyword open3d would crash on.
+    with pytest.raises(TypeError, match="camera locations from the episode"):
+        env.reconstruct(camera_locations=[[0.0, 0.0, 1.0]])
+    with pytest.raises(ValueError, match="normal_max_nn"):
+        env.reconstruct(normal_max_nn=0)
     env.close()
 
 

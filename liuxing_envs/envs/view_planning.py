@@ -621,6 +621,12 @@ class ViewPlanningEnv(gym.Env):
         if self.placed is None:
             raise RuntimeError("call reset() first: there is nothing to reconstruct")
         require_number("tau_fraction", tau_fraction, 1e-4, 1.0)
+        if "camera_locations" in kwargs:
+            raise TypeError(
+                "reconstruct() takes the camera locations from the episode's views; call "
+                "liuxing_envs.perception.reconstruct(env.unwrapped.map.points(), "
+                "camera_locations=...) to give others"
+            )
         record = reconstruct(
             self.map.points(), camera_locations=np.array(self._camera_locations), **kwargs
         )

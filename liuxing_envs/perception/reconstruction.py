@@ -30,6 +30,8 @@ unless ``object_size`` is given. All lengths are metres.
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -37,6 +39,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
+from liuxing_envs.envs.validation import require_int, require_number
 from liuxing_envs.perception.pointcloud import as_points
 
 __all__ = [
@@ -79,6 +82,8 @@ DEFAULT_POISSON_SCALE = 1.1
 #: (F-scores differing in the fourth digit); on one it repeats, and on 2 cores it is no
 #: slower (0.9-1.1 s against 1.1-1.2 s per reconstruction of a 4-view scan).
 DEFAULT_POISSON_THREADS = 1
+#: The deepest Poisson octree accepted (a grid of up to 2**depth cells per axis).
+MAX_POISSON_DEPTH = 16
 #: Mesh vertices whose Poisson density is below this quantile are removed.
 DEFAULT_DENSITY_QUANTILE = 0.02
 #: The mesh is cropped to the cloud's bounding box grown by this many voxels per side.
@@ -88,6 +93,19 @@ DEFAULT_MIN_MESH_POINTS = 100
 #: Metrics: tau as a fraction of the object size, and points sampled on a mesh.
 DEFAULT_TAU_FRACTION = 0.01
 DEFAULT_METRIC_SAMPLES = 16384
+
+
+#: Bounds of the keyword checks: counts go to open3d as C ints, and "positive" lengths and
+#: ratios must exceed _TINY.
+_MAX_COUNT = 2**31 - 1
+_TINY = 1e-12
+
+
+def _open3d_message(error: Exception) -> str:
+    """An open3d error's own words: without its terminal colour codes and the C++ function
+    signature and source line it starts with."""
+    text = re.sub(r"\x1b\[[0-9;]*m", "", str(error)).strip()
+    return text.rsplit(": ", 1)[-1] if text.startswith("[Open3D") else text
 
 
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
@@ -310,11 +328,26 @@ def reconstruct(
         With fewer cleaned points no mesh is attempted (``has_mesh`` False).
     """
     points = as_points(points, "points", finite=True)
+    # open3d takes these unchecked: normal_max_nn=0 crashes the process, a negative or NaN
+    # crop margin silently turns cropping off or empties the mesh.
+    require_number("voxel_size", voxel_size, 0.0, math.inf)
+    require_int("outlier_neighbors", outlier_neighbors, 0, _MAX_COUNT)
+    require_number("outlier_std", outlier_std, _TINY, math.inf)
+    require_int("outlier_passes", outlier_passes, 0, _MAX_COUNT)
+    if normal_radius is not None:
+        require_number("normal_radius", normal_radius, _TINY, math.inf)
+    require_int("normal_max_nn", normal_max_nn, 1, _MAX_COUNT)
+    require_int("poisson_depth", poisson_depth, 1, MAX_POISSON_DEPTH)
+    require_number("poisson_scale", poisson_scale, 1.0, math.inf)
+    if poisson_threads != -1:
+        require_int("poisson_threads (or -1 for all cores)", poisson_threads, 1, _MAX_COUNT)
+    require_number("density_quantile", density_quantile, 0.0, 1.0)
+    if density_quantile == 1.0:
+        raise ValueError("density_quantile must be below 1 (1 would remove every vertex)")
+    if crop_margin is not None:
+        require_number("crop_margin", crop_margin, 0.0, math.inf)
+    require_int("min_mesh_points", min_mesh_points, 0, _MAX_COUNT)
     voxel_size = float(voxel_size)
-    if not np.isfinite(voxel_size) or voxel_size < 0:
-        raise ValueError(f"voxel_size must be >= 0 metres, got {voxel_size}")
-    if not 0.0 <= density_quantile < 1.0:
-        raise ValueError(f"density_quantile must be in [0, 1), got {density_quantile}")
     if camera_locations is not None:
         camera_locations = np.asarray(camera_locations, dtype=np.float64)
         if camera_locations.size == 0:
@@ -384,13 +417,17 @@ def reconstruct(
             n_threads=int(poisson_threads),
         )
     except RuntimeError as error:  # open3d reports failures as RuntimeError
-        return result(False, f"Poisson reconstruction failed: {error}")
+        return result(False, f"Poisson reconstruction failed: {_open3d_message(error)}")
     densities = np.asarray(densities)
     if density_quantile > 0 and densities.size:
         mesh.remove_vertices_by_mask(densities < np.quantile(densities, density_quantile))
     low = cloud.get_min_bound() - crop_margin
     high = cloud.get_max_bound() + crop_margin
-    mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(low, high))
+    try:
+        mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(low, high))
+    except RuntimeError as error:  # a flat cloud with no crop margin: a box of no volume
+        reason = f"the cloud is flat and crop_margin is {crop_margin} m"
+        return result(False, f"no box to crop the mesh to ({reason}): {_open3d_message(error)}")
     mesh.remove_degenerate_triangles()
     mesh.remove_unreferenced_vertices()
     if len(mesh.triangles) == 0:
