@@ -308,6 +308,12 @@ def test_user_mesh_cleanup_drops_degenerate_triangles_and_fixes_inward_winding(t
     assert len(mesh.faces) == 12 and len(mesh.vertices) == 8
     assert mesh.volume > 0
     assert mesh.extents.max() == pytest.approx(0.15)
+    # A sliver reaching far out is dropped, and the size is the solid's, not the sliver's.
+    far = np.vstack([vertices, [[5.0, 0.0, 0.0], [10.0, 0.0, 0.0]]])
+    slivered = np.vstack([inward, [[0, 9, 10]]])
+    _write_ply(tmp_path / "slivered.ply", far, slivered)
+    mesh = load_mesh_file(str(tmp_path / "slivered.ply"))
+    assert len(mesh.faces) == 12 and mesh.extents.max() == pytest.approx(0.15)
 
 
 def _write_ply(path, vertices, faces) -> None:

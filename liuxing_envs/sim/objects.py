@@ -955,7 +955,9 @@ def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> Ob
     _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
     faces = faces[np.sort(first)]
     used, faces = np.unique(faces, return_inverse=True)
-    vertices = vertices[used] * (size / extent)
+    vertices = vertices[used]
+    # Scaled by what is left: a dropped sliver may have reached far beyond the solid.
+    vertices *= size / float(np.ptp(vertices, axis=0).max())
     faces = faces.reshape(-1, 3)
     spread = np.linalg.svd(vertices - vertices.mean(axis=0), compute_uv=False)
     if len(vertices) < 4 or spread[-1] <= 1e-9 * spread[0]:
