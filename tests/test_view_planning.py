@@ -358,6 +358,16 @@ def test_previews_leave_a_dynamic_episode_unchanged():
         assert first[1] == second[1]
         np.testing.assert_array_equal(first[0]["depth"], second[0]["depth"])
         np.testing.assert_array_equal(plain.data.qvel, previewed.data.qvel)
+    # A refused view leaves the arm where it was, so nothing recomputes its poses: they must
+    # be the ones before the preview (which lag the state by an integration step), not a
+    # recomputation from the state.
+    previewed.preview_view(0.5, 0.8, 0.35)
+    refused = plain.view_to_action(0.0, np.deg2rad(20), 0.45)
+    first, second = plain.step(refused), previewed.step(refused)
+    assert first[-1]["refused"] and second[-1]["refused"]
+    for key in first[0]:
+        np.testing.assert_array_equal(first[0][key], second[0][key])
+    np.testing.assert_array_equal(plain.data.xpos, previewed.data.xpos)
     plain.close()
     previewed.close()
 

@@ -449,6 +449,7 @@ class ViewPlanningEnv(gym.Env):
         self.observation_space = spaces.Dict(obs_spaces)
 
         self._renderer: mujoco.Renderer | None = None
+        self._preview_saved: mujoco.MjData | None = None  # preview_view's copy of the data
         self._reset_seed: int | None = None
         self._episode_ready = False
         self.placed = None
@@ -579,6 +580,7 @@ class ViewPlanningEnv(gym.Env):
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
         state["_renderer"] = None  # a GL context does not pickle; render() makes a new one
+        state["_preview_saved"] = None  # scratch, made again on the next preview
         return state
 
     @property
@@ -661,16 +663,17 @@ class ViewPlanningEnv(gym.Env):
                 "path_length": 0.0,
                 "reward": -self.refusal_penalty,
             }
-        spec = mujoco.mjtState.mjSTATE_INTEGRATION  # all a later mj_step depends on
-        saved = np.empty(mujoco.mj_stateSize(self.model, spec))
-        mujoco.mj_getState(self.model, self.data, saved, spec)
+        # The whole data, not just the state: in a dynamic episode the poses lag the state by
+        # one integration step, which recomputing them (mj_forward) would not give back.
+        if self._preview_saved is None:
+            self._preview_saved = mujoco.MjData(self.model)
+        mujoco.mj_copyData(self._preview_saved, self.model, self.data)
         self.arm.set_qpos(plan.waypoints[-1])
         # Its own generator, so previews leave the episode's noise stream untouched.
         rng = np.random.default_rng(0) if self._noise_enabled else None
         depth = self._render_depth(rng)
         points = crop_points(self.camera.points_world(depth, self.data), *self._crop)
-        mujoco.mj_setState(self.model, self.data, saved, spec)
-        mujoco.mj_forward(self.model, self.data)
+        mujoco.mj_copyData(self.data, self.model, self._preview_saved)
         gain = self.coverage.preview(self.placed.to_object(points))
         reward = self.coverage_reward_scale * gain - self.motion_cost * plan.length
         return {"reachable": True, "gain": gain, "path_length": plan.length, "reward": reward}
