@@ -646,3 +646,31 @@ def test_the_arm_collides_with_the_placed_object_and_not_with_parked_ones():
         assert not env.arm.collisions(inside.qpos), scene
         env.arm.use_collision_scene(None)
     env.close()
+
+
+@pytest.mark.parametrize("crop", [0.02, 0.05])
+def test_a_high_table_crop_leaves_full_coverage_reachable(crop):
+    # Points below the crop are never fused, so samples more than epsilon below it can never
+    # be covered: they must not count, or seeing every point above the crop capped coverage
+    # at 0.82 (20 mm) and 0.47 (50 mm) on this box.
+    from liuxing_envs.sim.objects import surface_samples
+
+    env = ViewPlanningEnv(objects=["box"], scales=(1.0,), table_crop_height=crop)
+    env.reset(seed=0)
+    tracker = env.coverage
+    assert (tracker.samples[tracker.observable][:, 2] >= crop - tracker.epsilon).all()
+    dense, _ = surface_samples("box", 100_000, 1)
+    seen = dense[dense[:, 2] >= crop]  # every point of the surface a scan could fuse
+    tracker.update(seen)
+    assert tracker.coverage > 0.99
+    env.close()
+
+
+def test_the_default_table_crop_leaves_every_observable_sample_counted():
+    from liuxing_envs.sim.objects import observable_samples
+
+    env = ViewPlanningEnv(**FAST)
+    env.reset(seed=0)
+    truth = observable_samples(env.placed.name, env.placed.scale, env.coverage_samples)
+    np.testing.assert_array_equal(env.coverage.observable, truth.observable)
+    env.close()

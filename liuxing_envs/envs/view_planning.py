@@ -229,7 +229,8 @@ class ViewPlanningEnv(gym.Env):
     ``terminate_on_success``, ``coverage_reward_scale``, ``motion_cost``, ``refusal_penalty``,
     ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``,
     ``table_crop_height`` (m above the table below which points are cropped before fusion
-    and coverage: the table itself), ``observe_free_space``, ``privileged``,
+    and coverage: the table itself; ground-truth samples more than ε below it do not count,
+    as no point could cover them), ``observe_free_space``, ``privileged``,
     ``render_mode`` ("rgb_array": the scene from the overview camera with the fused points
     and the camera's frustum).
 
@@ -343,6 +344,7 @@ class ViewPlanningEnv(gym.Env):
         self.object_region = region
         self.coverage_samples = coverage_samples
         self.epsilon_fraction = float(epsilon_fraction)
+        self.table_crop_height = float(table_crop_height)
         self.success_coverage = float(success_coverage)
         self.terminate_on_success = bool(terminate_on_success)
         self.coverage_reward_scale = float(coverage_reward_scale)
@@ -416,7 +418,7 @@ class ViewPlanningEnv(gym.Env):
         }
         self._noise_enabled = depth_noise is not None and depth_noise.enabled
         lower = np.array(WORKSPACE_LOWER, dtype=float)
-        lower[2] = table_crop_height
+        lower[2] = self.table_crop_height
         self._crop = (lower, np.array(WORKSPACE_UPPER, dtype=float))
         self.map = VoxelMap(map_voxel_size, *self._crop)
         self.free_space = FreeSpaceGrid(map_grid) if observe_free_space else None
@@ -704,7 +706,11 @@ class ViewPlanningEnv(gym.Env):
         key = (name, scale)
         if key not in self._trackers:
             shared = _shared_tracker(
-                self._stage.meshes[name], scale, self.coverage_samples, self.epsilon_fraction
+                self._stage.meshes[name],
+                scale,
+                self.coverage_samples,
+                self.epsilon_fraction,
+                self.table_crop_height,
             )
             self._trackers[key] = shared.fresh()
         return self._trackers[key]
@@ -920,13 +926,19 @@ def _stand_in_model(mesh, scale: float, with_arm: bool) -> mujoco.MjModel:
 
 
 @lru_cache(maxsize=OBSERVABLE_CACHE_SIZE)
-def _shared_tracker(mesh, scale: float, count: int, epsilon_fraction: float) -> CoverageTracker:
+def _shared_tracker(
+    mesh, scale: float, count: int, epsilon_fraction: float, crop_height: float
+) -> CoverageTracker:
     """The coverage set-up of one variant, shared by every env of a process (each scans with
     its own :meth:`CoverageTracker.fresh` copy): its lookup grid costs milliseconds and
-    about a megabyte, which a vectorised env would otherwise pay per env and variant."""
+    about a megabyte, which a vectorised env would otherwise pay per env and variant.
+
+    Samples more than epsilon below ``crop_height`` (above the table) do not count: no
+    fused point can come within epsilon of them, so they would cap coverage below 1."""
     truth = observable_samples(mesh, scale, count)
     epsilon = epsilon_fraction * scale * mesh.diagonal
-    return CoverageTracker(truth.points, epsilon, observable=truth.observable)
+    above_crop = truth.points[:, 2] >= crop_height - epsilon
+    return CoverageTracker(truth.points, epsilon, observable=truth.observable & above_crop)
 
 
 def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
