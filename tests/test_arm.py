@@ -310,3 +310,26 @@ def test_closed_form_ik_of_one_pose_agrees_with_the_batch_branch_by_branch():
         assert np.isnan(solutions[0][~valid[0]]).all()
         # Rounding differs (the batch sums in BLAS), amplified near a straight elbow.
         np.testing.assert_allclose(solutions[0][valid[0]], expected[expected_valid], atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("target", "up"),
+    [
+        ((0.0, 0.0, -1.0), (0.0, 0.0, 1.0)),  # straight down: the fallback up (+x) rolls it
+        ((1.0, 0.0, 0.0), (1.0, 0.0, 0.0)),  # along an up that is the fallback itself
+        ((0.0, 0.0, 2.0), (0.0, 0.0, 5.0)),  # along a longer up
+        ((0.3, -0.2, 0.1), (0.0, 0.0, 1e-9)),  # a short up is still a direction
+    ],
+)
+def test_look_at_gives_a_rotation_looking_at_the_target_for_any_up(target, up):
+    rotation = look_at(np.zeros(3), target, up)
+    np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
+    assert np.linalg.det(rotation) == pytest.approx(1.0)
+    direction = np.asarray(target) / np.linalg.norm(target)
+    np.testing.assert_allclose(-rotation[:, 2], direction, atol=1e-12)
+
+
+@pytest.mark.parametrize("up", [(0.0, 0.0, 0.0), (np.nan, 0.0, 0.0), (np.inf, 0.0, 1.0)])
+def test_look_at_refuses_an_up_that_is_no_direction(up):
+    with pytest.raises(ValueError, match="up must be a finite non-zero vector"):
+        look_at(np.zeros(3), (1.0, 0.0, 0.0), up)

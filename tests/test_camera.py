@@ -900,5 +900,7 @@ def test_pointcloud_helpers():
 
     kept = crop_points(np.array([[0.0, 0, 0], [1.0, 1, 1], [2.0, 0, 0]]), [0, 0, 0], [1, 1, 1])
     np.testing.assert_array_equal(kept, [[0.0, 0, 0], [1.0, 1, 1]])
-    with pytest.raises(ValueError, match="lower > upper"):
+    with pytest.raises(ValueError, match="lower <= upper"):
         crop_points(np.zeros((1, 3)), [1, 0, 0], [0, 1, 1])
+    with pytest.raises(ValueError, match="lower <= upper"):  # kept nothing, silently
+        crop_points(np.zeros((1, 3)), [np.nan, 0, 0], [1, 1, 1])

@@ -122,8 +122,12 @@ def test_occupied_cells_are_never_free():
 @pytest.mark.parametrize(
     "call, message",
     [
-        (lambda: FreeSpaceGrid(0), "resolution must be >= 1"),
-        (lambda: FreeSpaceGrid(8, ray_stride=0), "ray_stride must be >= 1"),
+        (lambda: FreeSpaceGrid(0), "resolution must be an integer in"),
+        (lambda: FreeSpaceGrid(2.5), "resolution must be an integer in"),  # was a grid of 2
+        (lambda: FreeSpaceGrid(8, ray_stride=0), "ray_stride must be an integer in"),
+        (lambda: FreeSpaceGrid(8).carve((0.0, 0.0), [(1.0, 1.0, 1.0)]), r"origin must have"),
+        (lambda: FreeSpaceGrid(8).carve((0.0, 0.0, 0.0), [(1.0, 1.0)]), r"shape \(N, 3\)"),
+        (lambda: FreeSpaceGrid(8).free(np.zeros((4, 4, 4))), r"shape \(8, 8, 8\)"),
         (lambda: FreeSpaceGrid(8).reset((0.0, np.nan, 0.0), 1.0), "center must be 3 finite"),
         (lambda: FreeSpaceGrid(8).reset((0.0, 0.0, 0.0), -1.0), "size must be a positive"),
     ],

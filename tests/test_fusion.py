@@ -281,3 +281,6 @@ def test_invalid_points_and_grids_are_rejected():
         voxel_map.occupancy_grid([0.3, 0, 0.1], 0.0, 8)
     with pytest.raises(ValueError, match="resolution"):
         voxel_map.occupancy_grid([0.3, 0, 0.1], 0.1, 0)
+    for not_a_count in (2.7, "4", True):  # 2.7 was silently a grid of 2
+        with pytest.raises(ValueError, match="resolution must be an integer"):
+            voxel_map.occupancy_grid([0.3, 0, 0.1], 0.1, not_a_count)

@@ -223,6 +223,8 @@ def test_mesh_surface_sampling_is_uniform_by_area():
     # Uniform on a triangle: the mean is the centroid.
     np.testing.assert_allclose(on_first.mean(0), [1 / 3, 1 / 3, 0], atol=0.01)
     assert np.array_equal(samples, sample_mesh_surface(vertices, triangles, 20000, seed=0))
+    with pytest.raises(ValueError, match="no finite area"):  # was numpy's "contain NaN"
+        sample_mesh_surface(vertices[[0, 1, 3]], [[0, 1, 2]], 10)
 
 
 def test_invalid_input_is_rejected():

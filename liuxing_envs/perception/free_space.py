@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from liuxing_envs.perception.fusion import checked_cube
+from liuxing_envs.envs.validation import require_int
+from liuxing_envs.perception.fusion import MAX_GRID_RESOLUTION, checked_cube
+from liuxing_envs.perception.pointcloud import as_points
 
 __all__ = ["DEFAULT_RAY_STRIDE", "FreeSpaceGrid"]
 
@@ -37,10 +39,8 @@ class FreeSpaceGrid:
     cube before the first :meth:`carve` of an episode."""
 
     def __init__(self, resolution: int, ray_stride: int = DEFAULT_RAY_STRIDE) -> None:
-        if int(resolution) < 1:
-            raise ValueError(f"resolution must be >= 1, got {resolution}")
-        if int(ray_stride) < 1:
-            raise ValueError(f"ray_stride must be >= 1, got {ray_stride}")
+        require_int("resolution", resolution, 1, MAX_GRID_RESOLUTION)
+        require_int("ray_stride", ray_stride, 1, 2**31 - 1)
         self.resolution = int(resolution)
         self.ray_stride = int(ray_stride)
         self._seen = np.zeros(self.resolution**3, dtype=bool)
@@ -56,12 +56,15 @@ class FreeSpaceGrid:
     def carve(self, origin, points: np.ndarray) -> None:
         """Mark the cells crossed by the rays from ``origin`` (the camera, world frame) to each
         of ``points`` ((N, 3), world frame, the surfaces the rays hit)."""
-        points = np.asarray(points, dtype=np.float64)[:: self.ray_stride]
+        points = as_points(points)[:: self.ray_stride]
+        origin = np.asarray(origin, dtype=np.float64)
+        if origin.shape != (3,):
+            raise ValueError(f"origin must have shape (3,), got {origin.shape}")
         if len(points) == 0:
             return
         resolution = self.resolution
         # In cell units from the cube's low corner, where the cube is [0, R)^3.
-        start = (np.asarray(origin, dtype=np.float64) - self._lower) / self._cell
+        start = (origin - self._lower) / self._cell
         delta = (points - self._lower) / self._cell - start
         length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -101,4 +104,10 @@ class FreeSpaceGrid:
     def free(self, occupied: np.ndarray) -> np.ndarray:
         """Cells seen and not ``occupied`` (an ``(R, R, R)`` array of the same cube): where a
         ray crossed a cell that also holds a surface point, the point wins."""
-        return self.seen() & ~np.asarray(occupied, dtype=bool)
+        occupied = np.asarray(occupied, dtype=bool)
+        if occupied.shape != (self.resolution,) * 3:
+            raise ValueError(
+                f"occupied must have this grid's shape {(self.resolution,) * 3}, got "
+                f"{occupied.shape}"
+            )
+        return self.seen() & ~occupied

@@ -24,6 +24,7 @@ from typing import Literal
 
 import numpy as np
 
+from liuxing_envs.envs.validation import require_int
 from liuxing_envs.perception.pointcloud import as_points, box_mask_t
 
 __all__ = [
@@ -43,6 +44,8 @@ DEFAULT_LOWER = (0.15, -0.4, 0.0)
 DEFAULT_UPPER = (0.85, 0.4, 0.5)
 #: Cells per axis of :meth:`VoxelMap.occupancy_grid` (32³ = 32768 values).
 DEFAULT_GRID_RESOLUTION = 32
+#: The finest occupancy or free-space grid accepted: 1024 cells per axis is a gigabyte.
+MAX_GRID_RESOLUTION = 1024
 #: Initial storage, in voxels (grown by doubling).
 _MIN_CAPACITY = 4096
 #: Packed keys must stay below 2**62 so sums of indices never overflow int64.
@@ -349,9 +352,8 @@ class VoxelMap:
             input), indexed ``[x, y, z]`` from the cube's low corner.
         """
         center, size = checked_cube(center, size)
+        require_int("resolution", resolution, 1, MAX_GRID_RESOLUTION)  # 2.7 was cut to 2
         resolution = int(resolution)
-        if resolution < 1:
-            raise ValueError(f"resolution must be >= 1, got {resolution}")
         cube = (tuple(center.tolist()), size, resolution)  # Python floats: cheap to compare
         if self._grid_cache is not None and self._grid_cache[0] == cube:
             _, grid, done = self._grid_cache

@@ -197,8 +197,11 @@ def crop_points(
     points = as_points(points)
     lower = _check_vector("lower", lower)
     upper = _check_vector("upper", upper)
-    if (lower > upper).any():
-        raise ValueError(f"crop box has lower > upper on some axis: lower={lower}, upper={upper}")
+    if not (lower <= upper).all():  # also NaN, which would silently keep no point
+        raise ValueError(
+            f"crop box bounds must be numbers with lower <= upper on every axis: lower={lower}, "
+            f"upper={upper}"
+        )
     # Contiguous coordinate rows: see box_mask_t.
     mask = box_mask_t(np.ascontiguousarray(points.T), lower, upper)
     kept = np.compress(mask, points, axis=0)  # = points[mask], a little cheaper

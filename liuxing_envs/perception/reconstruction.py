@@ -241,8 +241,11 @@ def sample_mesh_surface(
         raise ValueError("the mesh has no triangles to sample")
     a, b, c = (vertices[triangles[:, k]] for k in range(3))
     areas = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    total = areas.sum()
+    if not (np.isfinite(total) and total > 0):
+        raise ValueError(f"the mesh's triangles have no finite area to sample (total {total})")
     rng = np.random.default_rng(seed)
-    chosen = rng.choice(triangles.shape[0], size=int(count), p=areas / areas.sum())
+    chosen = rng.choice(triangles.shape[0], size=int(count), p=areas / total)
     # Uniform barycentric coordinates: reflect (u, v) back into the triangle when u + v > 1.
     u, v = rng.random((2, int(count)))
     flip = u + v > 1.0

@@ -30,9 +30,17 @@ def look_at(eye, target, up=WORLD_UP) -> np.ndarray:
         raise ValueError(f"eye {np.asarray(eye)} and target {target} must be finite and distinct")
     fx, fy, fz = fx / norm, fy / norm, fz / norm
     ux, uy, uz = (float(v) for v in np.asarray(up, dtype=float))
+    if not (math.isfinite(ux + uy + uz) and ux * ux + uy * uy + uz * uz > 0.0):
+        raise ValueError(f"up must be a finite non-zero vector, got {up}")
+    up_norm = math.sqrt(ux * ux + uy * uy + uz * uz)
     rx, ry, rz = _cross(fx, fy, fz, ux, uy, uz)
-    if math.sqrt(rx * rx + ry * ry + rz * rz) < 1e-6:
-        rx, ry, rz = _cross(fx, fy, fz, *FALLBACK_UP)
+    # Looking along up (to within 1e-6 rad): up gives no roll, so the fallback does; and when
+    # up is the fallback's own direction, world y.
+    for fallback in (FALLBACK_UP, (0.0, 1.0, 0.0)):
+        if math.sqrt(rx * rx + ry * ry + rz * rz) >= 1e-6 * up_norm:
+            break
+        rx, ry, rz = _cross(fx, fy, fz, *fallback)
+        up_norm = 1.0
     norm = math.sqrt(rx * rx + ry * ry + rz * rz)
     rx, ry, rz = rx / norm, ry / norm, rz / norm
     ix, iy, iz = _cross(rx, ry, rz, fx, fy, fz)
