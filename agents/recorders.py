@@ -77,15 +77,12 @@ class ViewPlanningRecorder:
                 cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(truth))
                 o3d.io.write_point_cloud(str(save_dir / "ground_truth.ply"), cloud)
             reconstruction, metrics = scene.reconstruct(save_dir)
-            record.update(
-                {
-                    "has_mesh": bool(reconstruction.has_mesh),
-                    **{
-                        key: float(metrics[key])
-                        for key in ("chamfer", "precision", "completeness", "fscore")
-                    },
-                }
-            )
+            record["has_mesh"] = bool(reconstruction.has_mesh)
+            for key in ("chamfer", "precision", "completeness", "fscore"):
+                value = float(metrics[key])
+                # Nothing fused gives an infinite Chamfer distance: None keeps report.json
+                # strict JSON, and the summaries count the episode as having none.
+                record[key] = value if np.isfinite(value) else None
         return record
 
 

@@ -513,3 +513,27 @@ def test_sampled_actions_do_not_depend_on_what_ran_before_in_the_process():
     finally:
         env.close()
     assert first == again
+
+
+def test_a_scan_with_nothing_fused_is_recorded_without_a_chamfer_distance():
+    # Its Chamfer distance is infinite, which report.json (strict JSON) cannot hold: the
+    # episode records None, and the summary averages the episodes that have one.
+    from agents.recorders import ViewPlanningRecorder
+    from agents.report import _view_planning_summary
+    from liuxing_envs.envs.view_planning import ViewPlanningEnv
+
+    env = ViewPlanningEnv(objects=["box"], scales=(1.0,), coverage_samples=1024)
+    recorder = ViewPlanningRecorder(reconstruct_episodes=2)
+    records = []
+    for index, empty in enumerate((False, True)):
+        _, info = env.reset(seed=index)
+        recorder.begin(env, info)
+        if empty:
+            env.map.reset()  # as if every point had been cropped away
+        records.append(recorder.end(env, index, index))
+    env.close()
+    assert records[0]["chamfer"] > 0 and records[1]["chamfer"] is None
+    assert records[1]["fscore"] == 0.0
+    summary = _view_planning_summary(records)
+    assert summary["chamfer"]["n"] == 1 and summary["chamfer"]["mean"] == records[0]["chamfer"]
+    json.dumps(records, allow_nan=False)

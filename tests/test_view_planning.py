@@ -236,6 +236,10 @@ def test_the_procedural_set_is_its_64_shapes():
         ({"objects": ["no_such_object"]}, "no_such_object"),
         ({"object_region": ((0.75, -0.35), (0.85, 0.35))}, "object_region must lie within x"),
         ({"object_region": ((0.0, 0.0), (0.1, 0.1))}, "object_region must lie within x"),
+        # Too large for the workspace or the views: named with the scale, not an empty
+        # interval for object_region or the observation radius alone.
+        ({"objects": ["torus"], "scales": (5.0,)}, "'torus' at scale 5.0 reaches 0.360 m"),
+        ({"objects": ["u_bracket"], "scales": (4.0,)}, "'u_bracket' at scale 4.0: observation"),
     ],
 )
 def test_bad_kwargs_fail_with_clear_messages(kwargs, message):

@@ -377,8 +377,15 @@ class ViewPlanningEnv(gym.Env):
             for mesh in meshes
             for scale in self.scales
         }
-        largest = max(self._footprints.values())
+        widest = max(self._footprints, key=self._footprints.get)
+        largest = self._footprints[widest]
         low, high = self._placeable(largest)
+        if (low > high).any():
+            raise ValueError(
+                f"{widest[0]!r} at scale {widest[1]} reaches {largest:.3f} m from its centre, "
+                f"too wide to stand anywhere inside the workspace "
+                f"{WORKSPACE_LOWER[:2]}-{WORKSPACE_UPPER[:2]}: lower scales or drop the object"
+            )
         if not ((region[0] >= low).all() and (region[1] <= high).all()):
             raise ValueError(
                 f"object_region must lie within x in [{low[0]:.3f}, {high[0]:.3f}] and y in "
@@ -388,11 +395,17 @@ class ViewPlanningEnv(gym.Env):
             )
         # Ground truth of every variant up front: resets stay cheap, and worker processes
         # forked from this one never call open3d (its thread pool deadlocks after a fork).
-        self._ground_truth = {
-            (mesh.name, scale): observable_samples(mesh, scale, coverage_samples)
-            for mesh in meshes
-            for scale in self.scales
-        }
+        self._ground_truth = {}
+        for mesh in meshes:
+            for scale in self.scales:
+                try:
+                    truth = observable_samples(mesh, scale, coverage_samples)
+                except ValueError as error:  # too large for the views around it
+                    raise ValueError(
+                        f"objects: {mesh.name!r} at scale {scale}: {error}; lower scales or "
+                        "drop the object"
+                    ) from None
+                self._ground_truth[(mesh.name, scale)] = truth
         # One tracker per variant, in the object's frame, reset per episode: its lookup grid
         # costs milliseconds to build, a reset microseconds. All are made here, next to the
         # ground truth they index (~3 ms each, once per process: envs share the grids), so
