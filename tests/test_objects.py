@@ -396,6 +396,10 @@ def test_user_mesh_errors_are_clear(tmp_path):
     empty.write_text("")
     with pytest.raises(ValueError, match="empty.obj"):
         load_mesh_file(empty)
+    huge = tmp_path / "huge.obj"  # was an OverflowError naming no file
+    huge.write_text("v 0 0 0\nv 1e300 0 0\nv 0 1e300 0\nv 0 0 1e300\nf 1 2 3\nf 1 3 4\n")
+    with pytest.raises(ValueError, match="huge.obj spans 1e\\+300 units"):
+        load_mesh_file(huge)
     cloud = tmp_path / "cloud.ply"
     o3d.io.write_point_cloud(
         str(cloud), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(rng.random((20, 3))))

@@ -945,6 +945,8 @@ def load_mesh_file(path: str | Path, size: float = DEFAULT_USER_MESH_SIZE) -> Ob
     if len(faces) == 0 or not np.isfinite(vertices).all():
         raise ValueError(f"mesh file {path} has no usable triangles (or non-finite vertices)")
     extent = float(np.ptp(vertices, axis=0).max())
+    if not np.isfinite(extent * extent):  # the area test below squares lengths
+        raise ValueError(f"mesh file {path} spans {extent:g} units: too large to scale")
     # Also drop zero-area slivers (three distinct but collinear vertices).
     a, b, c = (vertices[faces[:, i]] for i in range(3))
     keep = np.linalg.norm(np.cross(b - a, c - a), axis=1) > 1e-12 * max(extent, 1e-30) ** 2
