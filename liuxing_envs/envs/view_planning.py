@@ -633,7 +633,9 @@ class ViewPlanningEnv(gym.Env):
         open3d (see :func:`liuxing_envs.perception.reconstruction.reconstruct`; ``kwargs`` go
         there), and its metrics (Chamfer distance, precision, completeness, F-score) against
         the ground-truth surface samples with τ = ``tau_fraction`` × the object's
-        bounding-box diagonal. Saves .pcd/.ply files to ``save_dir`` when given. Heavy
+        bounding-box diagonal. The samples cover the whole surface, the face resting on the
+        table and what no view can see included (as in the reconstruction literature), so
+        completeness stays below the observable share of the surface that coverage counts. Saves .pcd/.ply files to ``save_dir`` when given. Heavy
         (Poisson meshing, about a second): call it at the end of an episode, not per step."""
         if self.placed is None:
             raise RuntimeError("call reset() first: there is nothing to reconstruct")
