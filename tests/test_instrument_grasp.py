@@ -532,3 +532,66 @@ def test_instrument_sleeps_at_rest_and_the_pads_wake_it():
     for _ in range(30):
         info = step_towards(grasp + [0.0, 0.0, 0.06], opening)
     assert info["grasped"] and info["lift_height"] > 0.04  # lifted by friction alone
+
+
+def grip_then_lift(friction_range):
+    """A 1 N grip around the scalpel's handle, then 15 steps up: the contact friction MuJoCo
+    used during the grip, per partner geom, and the height lifted."""
+    env = InstrumentGraspEnv(
+        instruments=["scalpel"],
+        gripper_control="force",
+        max_grip_force=1.0,
+        friction_range=friction_range,
+    )
+    env.reset(seed=0, options={"tool_start": (0.0, 0.0, 0.0), "jaw_clearance": 0.02})
+    world = env.world
+    for _ in range(15):
+        env.step(np.array([0, 0, 0, 0, 1], np.float32))
+    model, data = world.model, world.data
+    friction = {}
+    for geoms, coefficients in zip(data.contact.geom, data.contact.friction, strict=True):
+        on_instrument = model.geom_bodyid[geoms] == world.body
+        if on_instrument.sum() == 1:
+            partner = model.geom(geoms[~on_instrument][0]).name
+            friction.setdefault(partner, set()).add(tuple(coefficients))
+    for _ in range(15):
+        *_, info = env.step(np.array([0, 0, 0.5, 0, 1], np.float32))
+    return friction, info["lift_height"]
+
+
+def test_friction_range_scales_the_friction_of_the_instruments_contacts():
+    # The pads and the tray outrank the instrument (contact priority), so MuJoCo takes their
+    # friction for its contacts with them: scaling the instrument's geoms alone did nothing.
+    nominal, lifted = grip_then_lift(None)
+    assert set(nominal) == {"gripper/left_pad", "gripper/right_pad", "tray_floor"}
+    for factor in (0.1, 10.0):
+        scaled, _ = grip_then_lift((factor, factor))
+        assert scaled.keys() == nominal.keys()
+        for partner, coefficients in nominal.items():
+            (expected,) = coefficients
+            (got,) = scaled[partner]
+            np.testing.assert_allclose(got, np.multiply(expected, factor), rtol=1e-12)
+    # 2 pads x 1 N x 0.1 is about the scalpel's weight: the grip that lifts it at the nominal
+    # friction leaves it behind.
+    _, slipped = grip_then_lift((0.1, 0.1))
+    assert lifted > 0.08 and abs(slipped) < 0.005
+
+
+def test_a_friction_factor_of_one_changes_nothing():
+    # Each reset multiplies the compiled coefficients afresh: after an episode at 0.1, a factor
+    # of 1 (friction_range=None, or (1, 1)) leaves the scene exactly as compiled.
+    def rollout(friction_range):
+        env = InstrumentGraspEnv(instruments=["scalpel"], friction_range=(0.1, 0.1))
+        compiled = env.world.model.geom_friction.copy()
+        env.reset(seed=3)
+        env.friction_range = friction_range
+        observation, _ = env.reset(seed=3)
+        expert = PrivilegedGrasp(env)
+        trace = []
+        for _ in range(60):
+            observation, reward, *_ = env.step(expert.predict(observation)[0])
+            trace.append(np.append(observation["proprio"], reward))
+        np.testing.assert_array_equal(env.world.model.geom_friction, compiled)
+        return np.array(trace)
+
+    np.testing.assert_array_equal(rollout((1.0, 1.0)), rollout(None))

@@ -269,7 +269,12 @@ class InstrumentGraspEnv(gym.Env):
     **Episode**: a random instrument of ``instrument_set`` (or of ``instruments``; one
     compiled model each), level on the tray at a random position and yaw (redrawn until it
     lies 1 cm inside the rim), optionally with its mass and friction scaled by factors drawn
-    from ``mass_range`` / ``friction_range``. The arm starts in a ready pose with the wrist
+    from ``mass_range`` / ``friction_range``. The friction factor multiplies the coefficients
+    (sliding, torsional, rolling) of every contact the instrument makes, with the pads, the
+    tray, the fingers or the arm: MuJoCo takes a contact's friction from the geom of higher
+    contact priority (the pads and the tray outrank the instrument), so the factor scales the
+    instrument's geoms and every geom that can touch it, and with them the contacts among
+    those (a fingertip on the tray). The arm starts in a ready pose with the wrist
     camera 0.45 m above the tray and the gripper open 6 cm. ``reset(options=...)`` may fix
     ``instrument``, ``position`` (grasp point x, y; without ``yaw``, at a random yaw at which
     the instrument fits the tray) and ``yaw``, and may start the arm
@@ -297,7 +302,9 @@ class InstrumentGraspEnv(gym.Env):
     physics steps were left out of the force peaks; the success bonus counts to the new
     ``episode_steps`` (it always counted to 200); ``close()`` then ``reset()`` failed with
     image observations; a ``position`` reset option outside the tray is refused before the
-    reset changes anything.
+    reset changes anything. Fixed within v0 (2026-11-26): ``friction_range`` scaled only the
+    instrument's own geoms, whose friction the higher-priority pads and tray override, so it
+    changed no contact (the default, no factor, is unchanged).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -832,7 +839,8 @@ class _World:
         self._geoms = np.flatnonzero(model.geom_bodyid == self.body)
         self._nominal_mass = model.body_mass[self.body]
         self._nominal_inertia = model.body_inertia[self.body].copy()
-        self._nominal_friction = model.geom_friction[self._geoms].copy()
+        self._friction_geoms = self._friction_partners()
+        self._nominal_friction = model.geom_friction[self._friction_geoms].copy()
         self._arm_actuators = np.array(
             [
                 model.actuator(n).id
@@ -867,7 +875,8 @@ class _World:
         model.opt.noslip_iterations = 0  # the pads start clear of everything (see step())
         model.body_mass[self.body] = self._nominal_mass * mass_scale
         model.body_inertia[self.body] = self._nominal_inertia * mass_scale
-        model.geom_friction[self._geoms, 0] = self._nominal_friction[:, 0] * friction_scale
+        # From the compiled values each time, so a factor of 1 restores them exactly.
+        model.geom_friction[self._friction_geoms] = self._nominal_friction * friction_scale
         # Put the grasp point at grasp_xy: the body origin is offset from it in the plane.
         c, s = math.cos(yaw), math.sin(yaw)
         gx, gy = self.instrument.grasp_point[:2]
@@ -908,6 +917,20 @@ class _World:
         self.gripper.set_opening(opening)
         mujoco.mj_forward(model, data)
         mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
+
+    def _friction_partners(self) -> np.ndarray:
+        """The geoms whose friction coefficients a contact of the instrument can take: its own
+        and every geom that can touch it at its contact priority or above. MuJoCo takes a
+        contact's friction from the geom of higher priority, and the element-wise maximum of
+        the two at equal priority: the pads and the tray outrank the instrument, so scaling
+        its own geoms alone would change none of its contacts with them."""
+        model = self.model
+        own = model.geom_bodyid == self.body
+        contype = np.bitwise_or.reduce(model.geom_contype[own])
+        conaffinity = np.bitwise_or.reduce(model.geom_conaffinity[own])
+        can_touch = ((model.geom_contype & conaffinity) | (model.geom_conaffinity & contype)) != 0
+        ranked = model.geom_priority >= model.geom_priority[own].min()
+        return np.flatnonzero(own | (can_touch & ranked))
 
     def fits_on_tray(self, grasp_xy, yaw: float) -> bool:
         """Whether the instrument, its grasp point at ``grasp_xy`` and turned by ``yaw``, lies
