@@ -501,6 +501,16 @@ def test_render_shows_the_scene():
     env.close()
 
 
+def test_render_fps_is_the_control_rate():
+    # Videos are written at render_fps, a frame a control step: 20 played 10 Hz episodes at
+    # twice their speed.
+    for control_hz in (10, 50.0, 20):
+        env = gym.make("InstrumentGrasp-v0", instruments=["scalpel"], control_hz=control_hz)
+        assert env.metadata["render_fps"] == control_hz == 1 / env.unwrapped.dt
+    assert type(env.metadata["render_fps"]) is int  # the default, as it was
+    assert InstrumentGraspEnv.metadata["render_fps"] == 20  # no instance changed the class's
+
+
 def test_instrument_sleeps_at_rest_and_the_pads_wake_it():
     # Sleeping is what makes untouched steps cheap; it must never hide a touch or a grasp.
     env = InstrumentGraspEnv(instruments=["scalpel"])

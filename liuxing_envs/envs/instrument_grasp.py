@@ -289,7 +289,8 @@ class InstrumentGraspEnv(gym.Env):
     **Arguments**: every keyword above, ``resolution`` (square image side, pixels),
     ``depth_backend`` (``"gl"``, ``"raycast"``, ``"embree"`` or ``"auto"``; the
     instruments are primitives, so embree casts as raycast does) and ``render_mode``
-    (``"rgb_array"``: the overview camera, pads shaded white to red with their force).
+    (``"rgb_array"``: the overview camera, pads shaded white to red with their force; a
+    frame a control step, so ``metadata["render_fps"]`` is ``control_hz``).
 
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
     ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, then
@@ -304,7 +305,8 @@ class InstrumentGraspEnv(gym.Env):
     image observations; a ``position`` reset option outside the tray is refused before the
     reset changes anything. Fixed within v0 (2026-11-26): ``friction_range`` scaled only the
     instrument's own geoms, whose friction the higher-priority pads and tray override, so it
-    changed no contact (the default, no factor, is unchanged).
+    changed no contact (the default, no factor, is unchanged); ``metadata["render_fps"]``
+    was 20 at every ``control_hz`` (now the control rate).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -403,6 +405,11 @@ class InstrumentGraspEnv(gym.Env):
         )
 
         self.obs_mode, self.controller, self.render_mode = obs_mode, controller, render_mode
+        # A frame a control step: video writers (agents/video.py, Gymnasium's RecordVideo)
+        # play the frames at this rate, in real time only if it is the control rate. Per
+        # instance: the class's dict is shared by every env.
+        fps = float(control_hz)
+        self.metadata = {**self.metadata, "render_fps": int(fps) if fps.is_integer() else fps}
         self.instrument_names = names
         self.substeps = substeps
         self.force_limit, self.hard_limit = force_limit, force_limit * hard_limit_factor
