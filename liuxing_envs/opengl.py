@@ -42,3 +42,25 @@ def mujoco_import_problem() -> str | None:
             f"Set MUJOCO_GL to one of: {allowed}."
         )
     return None
+
+
+def opengl_disabled() -> bool:
+    """Whether MuJoCo runs without OpenGL (``MUJOCO_GL=disable``, read once, when mujoco is
+    imported). Its renderers are then made without complaint and fail on first use with an
+    AttributeError that names no setting, so the envs check this when they are made."""
+    try:
+        from mujoco.rendering.classic import gl_context
+    except ImportError:  # mujoco before 3.4 kept it at the top level
+        from mujoco import gl_context
+    return not hasattr(gl_context, "GLContext")
+
+
+def require_opengl(name: str, value, instead: str) -> None:
+    """ValueError naming the keyword ``name=value``, which renders with OpenGL, when MuJoCo
+    runs without it, and what works instead."""
+    if opengl_disabled():
+        raise ValueError(
+            f"{name}={value!r} needs OpenGL, but MuJoCo was imported with it disabled "
+            f"(MUJOCO_GL={os.environ.get('MUJOCO_GL', '')!r}): set MUJOCO_GL to egl, osmesa or "
+            f"glfw before mujoco is imported, or use {name}={instead}"
+        )

@@ -1,7 +1,11 @@
 """InstrumentGrasp-v0: API conformance, reward bookkeeping, determinism, the scripted baselines
 against the force limit, bad input, and physics sanity under random actions."""
 
+import json
+import os
 import pickle
+import subprocess
+import sys
 
 import gymnasium as gym
 import mujoco
@@ -509,6 +513,47 @@ def test_render_fps_is_the_control_rate():
         assert env.metadata["render_fps"] == control_hz == 1 / env.unwrapped.dt
     assert type(env.metadata["render_fps"]) is int  # the default, as it was
     assert InstrumentGraspEnv.metadata["render_fps"] == 20  # no instance changed the class's
+
+
+_NO_GL_SCRIPT = """
+import json, warnings
+from liuxing_envs.envs.instrument_grasp import InstrumentGraspEnv
+outcomes = []
+for kwargs in ({"obs_mode": "rgbd"}, {"obs_mode": "depth", "depth_backend": "gl"},
+               {"render_mode": "rgb_array"}, {"obs_mode": "depth"}, {"depth_backend": "gl"}):
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the depth camera's fall-back to ray casting
+            env = InstrumentGraspEnv(instruments=["scalpel"], resolution=16, **kwargs)
+            observation, _ = env.reset(seed=0)
+        outcomes.append(sorted(observation))
+    except ValueError as error:
+        outcomes.append(str(error))
+print(json.dumps(outcomes))
+"""
+
+
+def test_settings_that_render_are_refused_when_made_without_opengl():
+    # MUJOCO_GL is read when mujoco is imported: a fresh interpreter. The renderers used to
+    # be made without complaint and fail in reset() or render() with an AttributeError.
+    result = subprocess.run(
+        [sys.executable, "-c", _NO_GL_SCRIPT],
+        env={**os.environ, "MUJOCO_GL": "disable"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    rgbd, gl_depth, render, depth, gl_unused = json.loads(result.stdout.splitlines()[-1])
+    for message, keyword, instead in (
+        (rgbd, "obs_mode='rgbd'", "obs_mode='depth'"),
+        (gl_depth, "depth_backend='gl'", "depth_backend='auto'"),
+        (render, "render_mode='rgb_array'", "render_mode=None"),
+    ):
+        assert message.startswith(f"{keyword} needs OpenGL"), message
+        assert "MUJOCO_GL='disable'" in message and f"or use {instead}" in message
+    assert depth == ["depth", "forces", "proprio"]  # ray-cast
+    assert gl_unused == ["forces", "instrument", "proprio"]  # the state has no image
 
 
 def test_instrument_sleeps_at_rest_and_the_pads_wake_it():

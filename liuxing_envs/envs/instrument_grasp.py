@@ -23,6 +23,7 @@ from liuxing_envs.envs.validation import (
     require_range,
     step_context,
 )
+from liuxing_envs.opengl import require_opengl
 from liuxing_envs.sim.arm import Arm
 from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
 from liuxing_envs.sim.gripper import (
@@ -290,7 +291,9 @@ class InstrumentGraspEnv(gym.Env):
     ``depth_backend`` (``"gl"``, ``"raycast"``, ``"embree"`` or ``"auto"``; the
     instruments are primitives, so embree casts as raycast does) and ``render_mode``
     (``"rgb_array"``: the overview camera, pads shaded white to red with their force; a
-    frame a control step, so ``metadata["render_fps"]`` is ``control_hz``).
+    frame a control step, so ``metadata["render_fps"]`` is ``control_hz``). The colour image,
+    ``depth_backend="gl"`` and ``render_mode`` need OpenGL: with ``MUJOCO_GL=disable`` they
+    are refused when the env is made (``obs_mode="depth"`` is then ray-cast).
 
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
     ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, then
@@ -306,7 +309,9 @@ class InstrumentGraspEnv(gym.Env):
     reset changes anything. Fixed within v0 (2026-11-26): ``friction_range`` scaled only the
     instrument's own geoms, whose friction the higher-priority pads and tray override, so it
     changed no contact (the default, no factor, is unchanged); ``metadata["render_fps"]``
-    was 20 at every ``control_hz`` (now the control rate).
+    was 20 at every ``control_hz`` (now the control rate); without OpenGL, ``obs_mode="rgbd"``,
+    ``depth_backend="gl"`` and ``render_mode`` failed in ``reset()`` or ``render()`` with an
+    AttributeError (now refused by name when the env is made).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -351,6 +356,20 @@ class InstrumentGraspEnv(gym.Env):
         require_choice("render_mode", render_mode, (None, "rgb_array"))
         require_choice("terminate_on_success", terminate_on_success, (False, True))
         require_choice("depth_backend", depth_backend, BACKENDS)
+        # Without OpenGL MuJoCo's renderers are made without complaint and fail when first
+        # used, in reset() or render(), with an AttributeError that names no setting.
+        for name, value, renders, instead in (
+            ("obs_mode", obs_mode, obs_mode == "rgbd", "'depth' (ray-cast) or 'state'"),
+            (
+                "depth_backend",
+                depth_backend,
+                depth_backend == "gl" and obs_mode != "state",
+                "'auto' (ray-cast where OpenGL is missing), 'raycast' or 'embree'",
+            ),
+            ("render_mode", render_mode, render_mode is not None, "None"),
+        ):
+            if renders:
+                require_opengl(name, value, instead)
         for name, value, low, high in (
             ("control_hz", control_hz, 1.0, 500.0),
             ("timestep", timestep, 1e-4, 0.01),
