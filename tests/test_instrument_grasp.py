@@ -343,6 +343,34 @@ def test_tool_start_puts_the_open_jaws_above_and_across_the_handle():
             env.reset(options=options)
 
 
+def test_a_tool_start_into_the_instrument_is_raised_until_the_gripper_touches_nothing():
+    # An offset off the handle can put a finger into another part of the instrument: tissue
+    # forceps, seed 5, (-0.05, 0.05, 0) started with 208 N on a pad and hit the hard limit on
+    # its first step; 20 of these 168 starts shoved the instrument or started in contact.
+    env = InstrumentGraspEnv(instrument_set="all")
+    raised = 0
+    for name in env.instrument_names:
+        for seed in range(6):
+            for corner in ((-0.05, 0.05), (0.05, -0.05), (0.05, 0.05), (-0.05, -0.05)):
+                env.reset(seed=seed, options={"instrument": name})
+                placed = env.world.grasp_point()  # the same draws place it with a tool_start
+                observation, _ = env.reset(
+                    seed=seed, options={"instrument": name, "tool_start": (*corner, 0.0)}
+                )
+                world = env.world
+                assert observation["forces"].max() == 0.0
+                np.testing.assert_allclose(world.grasp_point(), placed, atol=1e-4)
+                offset = world.tcp_position() - world.grasp_point()
+                np.testing.assert_allclose(offset[:2], corner, atol=1e-4)  # not pushed aside
+                # Asked for: the grasp point's height, or the workspace's floor above it.
+                lowest = max(world.grasp_point()[2], world.workspace_lower[2])
+                raised += world.tcp_position()[2] > lowest + 5e-4
+    assert raised >= 30  # 38: a finger or pad in a ring, a blade, a shaft, by 0.3-3 mm
+    env.reset(seed=5, options={"instrument": "tissue_forceps", "tool_start": (-0.05, 0.05, 0)})
+    _, _, terminated, _, info = env.step(np.zeros(5, np.float32))
+    assert not terminated and info["step_peak_force"] == 0.0
+
+
 def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
     """The same push of closed jaws down onto the handle: the stiff arm trips the protective
     stop, the compliant one (arm_stiffness=0.1) settles on it with a few newtons."""

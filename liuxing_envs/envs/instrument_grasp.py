@@ -125,6 +125,9 @@ SETTLE_STEPS = 50
 TOOL_START_LOW = np.array([-0.05, -0.05, 0.0])
 TOOL_START_HIGH = np.array([0.05, 0.05, 0.30])
 TOOL_START_MAX_YAW_ERROR = math.pi / 2
+#: A ``tool_start`` that puts the gripper into the instrument or the tray is raised in steps of
+#: this much (m) until it touches nothing.
+TOOL_START_RAISE = 0.001
 FORCE_COLOUR_RANGE = 15.0  # N shown as full red on the pads in render()
 
 
@@ -283,7 +286,10 @@ class InstrumentGraspEnv(gym.Env):
     z 0-0.3; clipped to the workspace, so offsets below ~3 mm all start at its floor), with
     the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad) and opened to
     the handle's width plus ``jaw_clearance`` (m) if given (a training curriculum's starts;
-    see ``agents/curriculum.py``). Registered with a
+    see ``agents/curriculum.py``). Where the gripper would then overlap the instrument or the
+    tray (an offset off the handle can put a finger into a ring, a blade or a shaft), the tool
+    is raised in 1 mm steps until it touches nothing, x, y and yaw kept: every episode starts
+    with nothing touched, some such starts higher than asked. Registered with a
     TimeLimit of 200 steps (10 s; ``gym.make(..., max_episode_steps=N)`` changes it); the
     environment itself never truncates.
 
@@ -311,7 +317,9 @@ class InstrumentGraspEnv(gym.Env):
     changed no contact (the default, no factor, is unchanged); ``metadata["render_fps"]``
     was 20 at every ``control_hz`` (now the control rate); without OpenGL, ``obs_mode="rgbd"``,
     ``depth_backend="gl"`` and ``render_mode`` failed in ``reset()`` or ``render()`` with an
-    AttributeError (now refused by name when the env is made).
+    AttributeError (now refused by name when the env is made); a ``tool_start`` could put a
+    finger into the instrument, which the settling steps shoved, or which started the episode
+    at up to 208 N on a pad (now raised clear).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -878,6 +886,8 @@ class _World:
         model.actuator_biasprm[self._arm_actuators, 1] *= arm_stiffness
         model.actuator_biasprm[self._arm_actuators, 2] *= math.sqrt(arm_stiffness)
         self._camera_id = model.camera(WRIST_CAMERA).id
+        robot = model.body_rootid[model.site_bodyid[self._tcp_site]]
+        self._on_robot = model.body_rootid[model.geom_bodyid] == robot
         self._kinematics = mujoco.MjData(model)
         self._camera: DepthCamera | None = None
         self._rgb: mujoco.Renderer | None = None
@@ -916,13 +926,30 @@ class _World:
             math.sin(yaw / 2),
         ]
         data.qvel[self._joint_dof : self._joint_dof + 6] = 0.0
-        tcp, tool_yaw = READY_TCP, 0.0
-        if tool_start is not None:
+        opening = READY_OPENING
+        if jaw_clearance is not None:
+            opening = min(MAX_OPENING, self.instrument.grasp_width + jaw_clearance)
+        if tool_start is None:
+            self._place_tool(READY_TCP, 0.0, opening, tool_start)
+        else:
             mujoco.mj_kinematics(model, data)
             tool_yaw = jaws_across(self.grasp_axis()) + tool_yaw_error
             tcp = np.clip(
                 self.grasp_point() + tool_start, self.workspace_lower, self.workspace_upper
             )
+            self._place_tool(tcp, tool_yaw, opening, tool_start)
+            # An offset off the handle, or a turned tool, can put a finger into another part
+            # of the instrument (a ring, a tine) or the tray's rim: the settling steps would
+            # then shove it, or start the episode past the hard force limit.
+            while self._robot_touches_anything() and tcp[2] < self.workspace_upper[2]:
+                tcp = tcp + [0.0, 0.0, TOOL_START_RAISE]
+                self._place_tool(tcp, tool_yaw, opening, tool_start)
+        mujoco.mj_forward(model, data)
+        mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
+
+    def _place_tool(self, tcp, tool_yaw: float, opening: float, tool_start) -> None:
+        """Teleport the arm, pointing down, to the tool centre ``tcp`` turned by ``tool_yaw``,
+        with the fingers ``opening`` apart."""
         ready = self.arm.solve_ik(
             tcp,
             tool_down(tool_yaw),
@@ -937,12 +964,15 @@ class _World:
                 f"at {np.round(tcp, 4).tolist()}, which the arm cannot reach"
             )
         self.arm.set_qpos(ready.qpos)
-        opening = READY_OPENING
-        if jaw_clearance is not None:
-            opening = min(MAX_OPENING, self.instrument.grasp_width + jaw_clearance)
         self.gripper.set_opening(opening)
-        mujoco.mj_forward(model, data)
-        mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
+
+    def _robot_touches_anything(self) -> bool:
+        """Whether a geom of the arm or gripper, as posed now, overlaps one of the scene's."""
+        model, data = self.model, self.data
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        on_robot = self._on_robot[data.contact.geom]
+        return bool(np.any(on_robot[:, 0] != on_robot[:, 1]))
 
     def _friction_partners(self) -> np.ndarray:
         """The geoms whose friction coefficients a contact of the instrument can take: its own
