@@ -413,6 +413,14 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
         ({"max_gripper_delta": 0.5}, "max_gripper_delta"),
         ({"max_grip_force": 50.0}, "max_grip_force"),
         ({"arm_stiffness": 0.0}, "arm_stiffness"),
+        # An array is not a choice: one element passed as it, more raised numpy's error.
+        ({"controller": np.array(["ee_delta"])}, r"controller=array\(\['ee_delta'\].* choose"),
+        ({"obs_mode": np.array(["state", "depth"])}, r"obs_mode=array.* choose one of"),
+        ({"terminate_on_success": np.array([True, False])}, "terminate_on_success=array"),
+        # A dict unpacked as its keys, a set in any order.
+        ({"mass_range": {0.5: "a", 2.0: "b"}}, "mass_range must be a pair of numbers"),
+        ({"friction_range": {0.5, 2.0}}, "friction_range must be a pair of numbers"),
+        ({"control_hz": np.complex128(20)}, r"control_hz must be a number in \[1.0, 500.0\]"),
     ],
 )
 def test_bad_kwargs_name_the_argument(kwargs, message):
@@ -429,6 +437,13 @@ def test_bad_actions_are_refused():
         env.step(np.array([0.0, np.nan, 0.0, 0.0, 0.0]))
     with pytest.raises(ValueError, match="shape"):
         env.step(np.zeros(7))
+    # numpy would read the strings as numbers and drop the imaginary parts.
+    for action in (["0.5"] * 5, np.full(5, 1 + 1j), np.array([0.5, "1", 0, 0, 0], dtype=object)):
+        with pytest.raises(ValueError, match=r"action must be \(5,\) real numbers"):
+            env.step(action)
+    with pytest.raises(ValueError, match="reset option yaw must be a finite angle"):
+        env.reset(options={"yaw": np.complex128(1.0)})
+    env.step(np.array([0, 0, 0, 0, True], dtype=object))  # real numbers of any type pass
 
 
 def test_joint_delta_moves_each_joint_by_the_action():

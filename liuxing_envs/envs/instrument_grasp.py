@@ -319,7 +319,9 @@ class InstrumentGraspEnv(gym.Env):
     ``depth_backend="gl"`` and ``render_mode`` failed in ``reset()`` or ``render()`` with an
     AttributeError (now refused by name when the env is made); a ``tool_start`` could put a
     finger into the instrument, which the settling steps shoved, or which started the episode
-    at up to 208 N on a pad (now raised clear).
+    at up to 208 N on a pad (now raised clear); numpy arrays as choices, complex numbers,
+    dicts and sets as ranges, and actions of strings or complex numbers were taken (now
+    refused by name).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}

@@ -4,14 +4,16 @@ the value it got and what is allowed) and the context added to an error raised i
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Set
 from contextlib import contextmanager
 
 import numpy as np
 
 
 def require_choice(name: str, value, allowed) -> None:
-    if value not in allowed:
+    # An array compares element by element: one element would pass as that element (and be
+    # kept as an array), more would raise numpy's ambiguous-truth error, which names nothing.
+    if isinstance(value, np.ndarray) or value not in allowed:
         raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(allowed)}")
 
 
@@ -25,17 +27,14 @@ def require_int(name: str, value, low: int, high: int) -> None:
 
 
 def require_number(name: str, value, low: float, high: float) -> None:
-    if (
-        isinstance(value, bool)
-        or not isinstance(value, (int, float, np.number))
-        or not (math.isfinite(value) and low <= value <= high)
-    ):
+    if not _is_number(value) or not (math.isfinite(value) and low <= value <= high):
         raise ValueError(f"{name} must be a number in [{low}, {high}], got {value!r}")
 
 
 def require_range(name: str, value, low: float, high: float) -> tuple[float, float]:
     message = f"{name} must be a pair of numbers (min, max), got {value!r}"
-    if isinstance(value, str | bytes):  # it would unpack: "09" as the pair (0, 9)
+    # Each would unpack: "09" as the pair (0, 9), a dict as its keys, a set in any order.
+    if isinstance(value, str | bytes | Mapping | Set):
         raise ValueError(message)
     try:
         first, second = value
@@ -65,6 +64,7 @@ def require_numbers(name: str, value, low: float, high: float) -> tuple[float, .
 
 
 def _is_number(value) -> bool:
+    """A real number, not a bool (np.number would take complex ones too)."""
     return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
 
@@ -113,24 +113,33 @@ def option_xy(key, value) -> np.ndarray:
 
 
 def option_angle(key, value) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
-        raise ValueError(f"reset option {key} must be a finite angle (rad), got {value!r}")
-    if not math.isfinite(value):
+    if not _is_number(value) or not math.isfinite(value):
         raise ValueError(f"reset option {key} must be a finite angle (rad), got {value!r}")
     return float(value)
 
 
 def as_action(action, shape: tuple[int, ...]) -> np.ndarray:
     """A continuous action as float64, or ValueError naming what is wrong with it."""
+    array = None
     try:
-        array = np.asarray(action, dtype=np.float64)
+        # numpy would read strings ("0.5") as numbers and drop complex numbers' imaginary part.
+        if _real_numbers(np.asarray(action)):
+            array = np.asarray(action, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"action must be {shape} numbers, got {action!r}") from None
+        pass
+    if array is None:
+        raise ValueError(f"action must be {shape} real numbers, got {action!r}")
     if array.shape != shape:
         raise ValueError(f"action must have shape {shape}, got {array.shape}")
     if not np.isfinite(array).all():
         raise ValueError(f"action must be finite, got {array.tolist()}")
     return array
+
+
+def _real_numbers(array: np.ndarray) -> bool:
+    if array.dtype.kind == "O":  # a list mixing types: each element as it is
+        return all(_is_number(v) or isinstance(v, bool | np.bool_) for v in array.flat)
+    return array.dtype.kind in "biuf"
 
 
 def as_index(action, n: int) -> int:
