@@ -1,7 +1,11 @@
 """ViewPlanning-v0: API conformance, reward bookkeeping, coverage, determinism, bad input."""
 
 import gc
+import json
+import os
 import pickle
+import subprocess
+import sys
 import warnings
 import weakref
 
@@ -678,3 +682,37 @@ def test_the_default_table_crop_leaves_every_observable_sample_counted():
     truth = observable_samples(env.placed.name, env.placed.scale, env.coverage_samples)
     np.testing.assert_array_equal(env.coverage.observable, truth.observable)
     env.close()
+
+
+_NO_GL_SCRIPT = """
+import json, warnings
+from liuxing_envs.envs.view_planning import ViewPlanningEnv
+outcomes = []
+for kwargs in ({"depth_backend": "gl"}, {"render_mode": "rgb_array"}, {}):
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # auto: OpenGL missing, ray-cast instead
+            env = ViewPlanningEnv(objects=["box"], scales=(1.0,), coverage_samples=256, **kwargs)
+            env.reset(seed=0)
+        outcomes.append(env.camera.backend)
+    except ValueError as error:
+        outcomes.append(str(error))
+print(json.dumps(outcomes))
+"""
+
+
+def test_settings_that_render_are_refused_when_made_without_opengl():
+    # MUJOCO_GL is read when mujoco is imported: a fresh interpreter. They used to fail at
+    # the first image with an AttributeError naming no setting.
+    result = subprocess.run(
+        [sys.executable, "-c", _NO_GL_SCRIPT],
+        env={**os.environ, "MUJOCO_GL": "disable"},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    gl_depth, render, auto = json.loads(result.stdout.splitlines()[-1])
+    assert gl_depth.startswith("depth_backend='gl' needs OpenGL"), gl_depth
+    assert render.startswith("render_mode='rgb_array' needs OpenGL"), render
+    assert auto == "raycast"

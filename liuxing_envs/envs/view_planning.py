@@ -29,6 +29,7 @@ from liuxing_envs.envs.validation import (
     require_range,
     step_context,
 )
+from liuxing_envs.opengl import require_opengl
 from liuxing_envs.perception.coverage import CoverageTracker
 from liuxing_envs.perception.free_space import FreeSpaceGrid
 from liuxing_envs.perception.fusion import VoxelMap
@@ -293,6 +294,13 @@ class ViewPlanningEnv(gym.Env):
         require_choice("object_set", object_set, OBJECT_SET_NAMES)
         require_choice("depth_backend", depth_backend, BACKENDS)
         require_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
+        # Without OpenGL these would fail at the first image with an AttributeError.
+        if depth_backend == "gl":
+            require_opengl(
+                "depth_backend", depth_backend, "'auto' (ray-cast where OpenGL is missing)"
+            )
+        if render_mode is not None:
+            require_opengl("render_mode", render_mode, "None")
         require_int("resolution", resolution, 8, 512)
         require_int("coverage_samples", coverage_samples, 256, 200_000)
         require_int("map_grid", map_grid, 4, 64)
@@ -635,8 +643,9 @@ class ViewPlanningEnv(gym.Env):
         the ground-truth surface samples with τ = ``tau_fraction`` × the object's
         bounding-box diagonal. The samples cover the whole surface, the face resting on the
         table and what no view can see included (as in the reconstruction literature), so
-        completeness stays below the observable share of the surface that coverage counts. Saves .pcd/.ply files to ``save_dir`` when given. Heavy
-        (Poisson meshing, about a second): call it at the end of an episode, not per step."""
+        completeness stays below the observable share of the surface that coverage counts.
+        Saves .pcd/.ply files to ``save_dir`` when given. Heavy (Poisson meshing, about a
+        second): call it at the end of an episode, not per step."""
         if self.placed is None:
             raise RuntimeError("call reset() first: there is nothing to reconstruct")
         require_number("tau_fraction", tau_fraction, 1e-4, 1.0)
