@@ -244,6 +244,7 @@ def test_the_procedural_set_is_its_64_shapes():
         # interval for object_region or the observation radius alone.
         ({"objects": ["torus"], "scales": (5.0,)}, "'torus' at scale 5.0 reaches 0.360 m"),
         ({"objects": ["u_bracket"], "scales": (4.0,)}, "'u_bracket' at scale 4.0: observation"),
+        ({"scales": {0.8: "a", 1.0: "b"}}, "scales must be a non-empty list"),  # was its keys
     ],
 )
 def test_bad_kwargs_fail_with_clear_messages(kwargs, message):

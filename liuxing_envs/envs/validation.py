@@ -52,7 +52,8 @@ def require_numbers(name: str, value, low: float, high: float) -> tuple[float, .
     """A non-empty sequence of finite numbers in [low, high], as floats."""
     message = f"{name} must be a non-empty list of numbers in [{low}, {high}], got {value!r}"
     try:
-        items = list(value) if not isinstance(value, str | bytes) else []
+        # A string, a dict (its keys) or a set (in any order) is no list of numbers.
+        items = list(value) if not isinstance(value, str | bytes | Mapping | Set) else []
     except TypeError:
         raise ValueError(message) from None
     if not items or not all(_is_number(v) for v in items):
