@@ -124,10 +124,11 @@ def scan(
         cloud.points = o3d.utility.Vector3dVector(np.concatenate(clouds))
     fused = cloud.voxel_down_sample(voxel_size)
     ply_path = out_dir / "scan.ply"
-    if not o3d.io.write_point_cloud(str(ply_path), fused):
+    # open3d writes no file for an empty cloud (no view reached, or nothing above the table).
+    if fused.has_points() and not o3d.io.write_point_cloud(str(ply_path), fused):
         raise OSError(f"open3d could not write {ply_path}")
     summary = {
-        "ply": str(ply_path),
+        "ply": str(ply_path) if fused.has_points() else None,
         "backend": backend_used,
         "motion": motion,
         "views_requested": views,
@@ -227,9 +228,9 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"captured {summary['views_captured']}/{summary['views_requested']} views "
         f"({summary['backend']} depth, {summary['motion']} motion) in {summary['seconds']} s; "
-        f"{summary['fused_points']} fused points -> {summary['ply']}"
+        f"{summary['fused_points']} fused points -> {summary['ply'] or 'no scan.ply'}"
     )
-    return 0 if summary["views_captured"] else 1
+    return 0 if summary["ply"] else 1
 
 
 if __name__ == "__main__":

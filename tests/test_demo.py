@@ -105,3 +105,15 @@ def test_motion_help_lists_the_choices(capsys):
     text = capsys.readouterr().out
     motion = text.split("--motion {kinematic,dynamic}")[-1].split("--resolution")[0]
     assert "kinematic" in motion and "dynamic" in motion and "default: kinematic" in motion
+
+
+def test_a_scan_that_captures_nothing_says_so_and_keeps_its_summary(tmp_path, capsys):
+    # Straight down from 0.8 m is out of reach: no view, no points. It ended in open3d's
+    # "could not write scan.ply" traceback, with no summary.json.
+    quick = ("--resolution", "16", "--backend", "raycast", "--out", str(tmp_path))
+    assert main(["--views", "4", *quick]) == 0  # an earlier scan's scan.ply goes
+    assert main(["--views", "1", "--radius", "0.8", "--elevation", "90", *quick]) == 1
+    assert "captured 0/1 views" in capsys.readouterr().out
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["views_captured"] == 0 and summary["ply"] is None
+    assert not (tmp_path / "scan.ply").exists()
