@@ -21,6 +21,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks import peers, physics, scaling, throughput, time_split, training  # noqa: E402
 from benchmarks.isolated import describe_cores, machine  # noqa: E402
+from benchmarks.report_files import check_writable, report_paths  # noqa: E402
 from benchmarks.throughput import GRASP, GRASP_STATE, VIEW_DEFAULT, VIEW_PLANNING, Config  # noqa: E402
 
 SECTIONS = ("throughput", "split", "physics", "peers", "scaling", "training")
@@ -66,13 +67,13 @@ def _parse(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     named = args.sections is not None
     args.sections = _sections(parser, args.sections)
-    args.json = _report_paths(parser, args.out)
+    args.json = report_paths(parser, args.out)
     args.earlier = None
     if args.update:
         if not named:
             parser.error("--update re-measures the --sections it is given; name them")
         args.earlier = _earlier(parser, args)
-    _check_writable(parser, args.out, args.json)
+    check_writable(parser, args.out, args.json)
     return args
 
 
@@ -91,26 +92,6 @@ def _sections(parser: argparse.ArgumentParser, text: str | None) -> list[str]:
     if unknown:
         parser.error(f"unknown section(s) {unknown}; choose from {list(SECTIONS)}")
     return names
-
-
-def _report_paths(parser: argparse.ArgumentParser, out: Path) -> Path:
-    """The JSON path beside the Markdown report ``out``, once neither is a folder and they
-    differ."""
-    if out.is_dir():
-        parser.error(
-            f"--out {out} is a folder; --out names the Markdown report file, "
-            f"e.g. {out / 'RESULTS.md'}"
-        )
-    if out.suffix.lower() == ".json":
-        parser.error(
-            f"--out {out} ends in .json: --out names the Markdown report, and the raw figures go "
-            f"to the same path with the suffix .json, so one would overwrite the other; "
-            f"give e.g. {out.with_suffix('.md')}"
-        )
-    json_path = out.with_suffix(".json")
-    if json_path.is_dir():
-        parser.error(f"--out {out}: its raw figures go to {json_path}, which is a folder")
-    return json_path
 
 
 def _earlier(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
@@ -154,29 +135,6 @@ def _earlier(parser: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
             "replace it"
         )
     return earlier
-
-
-def _check_writable(parser: argparse.ArgumentParser, out: Path, json_path: Path) -> None:
-    """Both report files can be written: the folder exists or is created, an existing file
-    opens for writing (left as it is), and a new one is created and removed again. Checked
-    before measuring, which takes minutes."""
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        file = next((p for p in (out.parent, *out.parent.parents) if p.is_file()), None)
-        why = f"{file} is a file, not a folder" if file else error.strerror
-        parser.error(f"--out {out}: cannot create its folder {out.parent}: {why}")
-    for path in (out, json_path):
-        try:
-            if path.exists():
-                with path.open("r+b"):  # not "w": a refused or failed run keeps the old report
-                    pass
-            else:
-                with path.open("xb"):
-                    pass
-                path.unlink()
-        except OSError as error:
-            parser.error(f"--out {out}: cannot write {path}: {error.strerror or error}")
 
 
 def _row(*cells) -> str:

@@ -22,6 +22,7 @@ import numpy as np  # noqa: E402
 import liuxing_envs  # noqa: E402, F401
 from agents.grasp_baselines import GRASP_BASELINES  # noqa: E402
 from agents.statistics import wilson_interval  # noqa: E402
+from liuxing_envs.sim.instruments import INSTRUMENT_SETS  # noqa: E402
 
 
 def run(baseline: str, episodes: int, instrument_set: str) -> dict:
@@ -57,9 +58,15 @@ def run(baseline: str, episodes: int, instrument_set: str) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=50)
-    parser.add_argument("--sets", nargs="+", default=["train", "held_out"])
-    parser.add_argument("--baselines", nargs="+", default=list(GRASP_BASELINES))
+    parser.add_argument(
+        "--sets", nargs="+", choices=list(INSTRUMENT_SETS), default=["train", "held_out"]
+    )
+    parser.add_argument(
+        "--baselines", nargs="+", choices=list(GRASP_BASELINES), default=list(GRASP_BASELINES)
+    )
     args = parser.parse_args()
+    if args.episodes < 1:
+        parser.error(f"--episodes must be at least 1, got {args.episodes}")
     for instrument_set in args.sets:
         print(
             f"\nInstrumentGrasp-v0, {instrument_set} instruments, obs_mode=rgbd, "

@@ -35,6 +35,7 @@ import numpy as np  # noqa: E402
 
 import liuxing_envs  # noqa: E402
 from benchmarks.isolated import describe_cores, machine, run_in_fresh_process  # noqa: E402
+from benchmarks.report_files import check_writable, report_paths  # noqa: E402
 from liuxing_envs.sim.stability import DIVERGENCE_WARNINGS  # noqa: E402
 
 ENV_IDS = liuxing_envs.ENV_IDS
@@ -228,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--steps must be >= 20 and --envs >= 10 (memory is sampled 20 times)")
     if not 0.0 < args.max_growth < 1.0:
         parser.error(f"--max-growth must be a fraction in (0, 1), got {args.max_growth}")
+    json_path = report_paths(parser, args.out)
+    check_writable(parser, args.out, json_path)
     results = []
     for env_id in ENV_IDS:
         for kind, size in (("soak", args.steps), ("create", args.envs)):
@@ -237,7 +240,7 @@ def main(argv: list[str] | None = None) -> int:
             )
     command = "python -m benchmarks.soak " + " ".join(argv if argv is not None else sys.argv[1:])
     args.out.write_text(report(results, command.strip(), args.max_growth))
-    args.out.with_suffix(".json").write_text(json.dumps(results, indent=2) + "\n")
+    json_path.write_text(json.dumps(results, indent=2) + "\n")
     failures = [(r["env_id"], found) for r in results if (found := verdict(r, args.max_growth))]
     for env_id, problems in failures:
         print(f"soak FAILED for {env_id}: {'; '.join(problems)}", file=sys.stderr)

@@ -51,6 +51,11 @@ def main() -> None:
     parser.add_argument("--object-set", choices=OBJECT_SET_NAMES, default="held_out")
     parser.add_argument("--budget", type=int, default=4)
     args = parser.parse_args()
+    if args.episodes < 1 or not 1 <= args.budget <= 64:
+        parser.error(
+            f"--episodes must be at least 1 and --budget within [1, 64] views, got "
+            f"{args.episodes} and {args.budget}"
+        )
     print(
         f"ViewPlanning-v0, {args.object_set} objects, {args.budget} views, discrete actions, "
         f"{args.episodes} episodes (seeds 0-{args.episodes - 1}), default kwargs\n"

@@ -161,6 +161,35 @@ def test_soak_refuses_a_growth_limit_that_is_not_a_fraction():
     assert "--max-growth must be a fraction in (0, 1), got 5.0" in result.stderr
 
 
+def test_soak_refuses_an_out_it_cannot_write_before_measuring(tmp_path):
+    # It measured for minutes, then failed to write, losing the figures.
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    for out, message in (
+        (blocker / "SOAK.md", f"{blocker} is a file, not a folder"),
+        (tmp_path / "SOAK.json", "ends in .json"),
+        (tmp_path, f"is a folder; --out names the Markdown report file, e.g. {tmp_path}/SOAK.md"),
+    ):
+        result = run_script("-m", "benchmarks.soak", "--out", str(out), check=False)
+        assert result.returncode == 2 and message in result.stderr, result.stderr
+        assert "soak: soak" not in result.stderr  # nothing measured
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (("benchmarks.instrument_grasp_baselines", "--episodes", "0"), "--episodes must be"),
+        (("benchmarks.instrument_grasp_baselines", "--sets", "bogus"), "invalid choice: 'bogus'"),
+        (("benchmarks.instrument_grasp_baselines", "--baselines", "x"), "invalid choice: 'x'"),
+        (("benchmarks.view_planning_baselines", "--budget", "0"), "--budget within [1, 64]"),
+        (("benchmarks.view_planning_baselines", "--episodes", "0"), "--episodes must be"),
+    ],
+)
+def test_baseline_benchmarks_refuse_bad_flags_before_building_envs(argv, message):
+    result = run_script("-m", *argv, check=False)  # tracebacks, some after an episode
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+
+
 def test_scaling_speedups_are_taken_within_each_round():
     # Round 2 ran while the machine was twice as fast for both: its ratio is 2 like round 1's;
     # a ratio of medians across rounds would mix in the drift.
