@@ -15,8 +15,11 @@ succeeded in 18/20 episodes with an arm std of 0.02 (0.4 mm per step), 10/20 wit
 episodes of a 0-0.1 sweep. A single noise level would give either few failures or few
 successes. They are ordinary transitions of the training env (same kwargs, same reward),
 stored raw like every other transition, and the observation normaliser's statistics start
-from them. They stay in the buffer, and in its checkpoints, for the whole run. SAC itself is
-unchanged: its actor and critic learn from uniform samples of the buffer.
+from them. They are ordinary rows of SAC's ring buffer (and of its checkpoints): once the run
+has added ``buffer_size`` rows less theirs, its own transitions overwrite them, oldest first
+(with ``sac.yml``'s 300k rows and about 10k demonstration transitions, from about step 290k
+on), and a configuration whose demonstrations alone would fill the buffer is refused. SAC
+itself is unchanged: its actor and critic learn from uniform samples of the buffer.
 
 Configured by the ``demonstrations`` harness key of a hyper-parameter entry::
 
@@ -102,6 +105,14 @@ def seed_replay_buffer(model, config: dict) -> dict:
     # transitions (each stores its own next observation), so demonstrations fill them in
     # order, and a remainder short of a whole row is left out.
     width = buffer.n_envs
+    if len(transitions) // width > buffer.buffer_size:
+        raise ConfigError(
+            f"demonstrations: {config['demonstrations']['episodes']} episodes gave "
+            f"{len(transitions)} transitions, {len(transitions) // width} buffer rows at "
+            f"n_envs={width}, more than buffer_size={buffer.buffer_size}: the ring buffer "
+            "would overwrite its own demonstrations before the first update; give fewer "
+            "episodes or a larger buffer_size"
+        )
     for start in range(0, len(transitions) - width + 1, width):
         row = Transition(*zip(*transitions[start : start + width], strict=True))
         buffer.add(

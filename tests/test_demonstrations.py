@@ -41,10 +41,10 @@ def test_view_planning_has_no_expert_and_defaults_are_filled_in():
     assert resolved["episodes"] == 2 and resolved["action_noise"] > resolved["gripper_noise"] > 0
 
 
-def _model(n_envs: int) -> SAC:
+def _model(n_envs: int, buffer_size: int = 5_000) -> SAC:
     venv = DummyVecEnv([lambda: make_env(ENV_ID, ENV_KWARGS)] * n_envs)
     venv = VecNormalize(venv, norm_reward=False, norm_obs_keys=["proprio", "forces", "instrument"])
-    return SAC("MultiInputPolicy", venv, buffer_size=5_000, learning_starts=0, seed=0)
+    return SAC("MultiInputPolicy", venv, buffer_size=buffer_size, learning_starts=0, seed=0)
 
 
 def _config(episodes: int) -> dict:
@@ -92,4 +92,15 @@ def test_demonstrations_fill_whole_rows_of_a_multi_env_buffer():
     np.testing.assert_array_equal(
         model.replay_buffer.next_observations["proprio"][:100, 0], observations[:100, 1]
     )
+    model.get_env().close()
+
+
+@pytest.mark.slow
+def test_demonstrations_larger_than_the_buffer_are_refused():
+    # The ring buffer wrapped and overwrote them before the first update, and the run said
+    # it had added all 200.
+    model = _model(n_envs=1, buffer_size=150)
+    with pytest.raises(ConfigError, match="200 transitions, 200 buffer rows .* buffer_size=150"):
+        seed_replay_buffer(model, _config(episodes=1))
+    assert model.replay_buffer.pos == 0 and not model.replay_buffer.full
     model.get_env().close()
