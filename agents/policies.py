@@ -36,11 +36,21 @@ def _output_size(module: nn.Module, shape: tuple[int, ...]) -> int:
         return int(module(torch.zeros(1, *shape)).shape[1])
 
 
+#: The smallest image side the three strided convolutions of ImageEncoder leave a pixel of.
+MIN_IMAGE_SIDE = 19
+
+
 class ImageEncoder(nn.Sequential):
     """Three strided 3x3/5x5 convolutions and a linear layer: about 0.15 M weights at 64x64."""
 
     def __init__(self, shape: tuple[int, ...], features: int) -> None:
         channels = shape[0]
+        if min(shape[1:]) < MIN_IMAGE_SIDE:  # torch would say only "kernel size can't be ..."
+            raise ValueError(
+                f"the perception extractor's image CNN needs images of at least "
+                f"{MIN_IMAGE_SIDE}x{MIN_IMAGE_SIDE} pixels, got {shape[1]}x{shape[2]}: raise "
+                "the env's resolution"
+            )
         convs = nn.Sequential(
             nn.Conv2d(channels, 16, kernel_size=5, stride=2),
             nn.ReLU(),

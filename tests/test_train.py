@@ -679,6 +679,17 @@ def test_perception_extractor_encodes_every_observation_key():
     env.close()
 
 
+def test_perception_extractor_names_the_smallest_image_it_takes():
+    import gymnasium as gym
+
+    from agents.policies import MIN_IMAGE_SIDE, ImageEncoder
+
+    ImageEncoder((1, MIN_IMAGE_SIDE, MIN_IMAGE_SIDE), 8)  # leaves one pixel
+    small = gym.spaces.Box(0, 255, (1, MIN_IMAGE_SIDE - 1, 64), dtype=np.uint8)
+    with pytest.raises(ValueError, match="at least 19x19 pixels, got 18x64: raise the env"):
+        ImageEncoder(small.shape, 8)  # was torch's "Kernel size can't be greater than ..."
+
+
 def test_perception_extractor_stacks_free_space_onto_the_map():
     import gymnasium as gym
     import torch
