@@ -351,13 +351,17 @@ class _Periodic(BaseCallback):
         self._schedule()
 
     def _on_step(self) -> bool:
-        if self.num_timesteps >= self.next_at:
-            self.act()
-            self._schedule()
+        self._act_if_due()
         return True
 
+    def _act_if_due(self) -> None:
+        # The model's counter: SB3 updates the callback's own only in on_step.
+        if self.model.num_timesteps >= self.next_at:
+            self.act()
+            self._schedule()
+
     def _schedule(self) -> None:
-        self.next_at = (self.num_timesteps // self.every + 1) * self.every
+        self.next_at = (self.model.num_timesteps // self.every + 1) * self.every
 
     @abstractmethod
     def act(self) -> None:
@@ -396,9 +400,21 @@ class StopWhenRequested(BaseCallback):
 
 
 class PeriodicCheckpoint(_Periodic):
+    """A checkpoint every ``every`` steps, taken when the next rollout starts: only there has
+    the model learned from every step it counts (PPO updates after each rollout) and does
+    SAC's replay buffer hold each of them. Taken at a step, a PPO checkpoint was labelled
+    with steps its weights had not learned from, and a run resumed from it ended on more
+    steps and fewer updates than one never stopped."""
+
     def __init__(self, run_dir: Path, every: int, curriculum=None) -> None:
         super().__init__(every)
         self.run_dir, self.curriculum = run_dir, curriculum
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_start(self) -> None:
+        self._act_if_due()
 
     def act(self) -> None:
         save_checkpoint(self.model, self.run_dir, self.curriculum)

@@ -518,6 +518,38 @@ def test_a_failure_while_learning_saves_a_checkpoint_to_resume_from(tmp_path, mo
     assert run_folder.latest_checkpoint(run_dir) == calls[0] < calls[1]
 
 
+def grasp_ppo_args(run_dir: Path, steps: int, *flags: str) -> list[str]:
+    """A one-env PPO run with 64-step rollouts, no evaluation and no final comparison
+    (``flags`` may override them)."""
+    return [
+        *quick_args("InstrumentGrasp-v0", "ppo", run_dir, steps, n_envs=1),
+        *("--eval-freq", "0", "--final-episodes", "0", *flags),
+    ]
+
+
+def saved_counts(path: Path) -> tuple[int, int]:
+    """A saved PPO model's step counter and its number of rollouts learned from (2 epochs
+    each, as QUICK_HYPERPARAMS sets)."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, _, _ = load_from_zip_file(path, device="cpu")
+    return data["num_timesteps"], data["_n_updates"] // 2
+
+
+def test_ppo_checkpoints_have_learned_from_every_step_they_are_labelled_with(tmp_path):
+    """A checkpoint is taken between rollouts, after the update: one taken at the step that
+    passed --save-freq held weights of fewer steps than its label, and a run resumed from it
+    ended on more steps and fewer updates than one never stopped."""
+    run_dir = tmp_path / "run"
+    assert train.main(grasp_ppo_args(run_dir, 192, "--save-freq", "100")) == 0
+    assert run_folder.checkpoint_steps(run_dir) == [128, 192]
+    for steps in (128, 192):
+        assert saved_counts(run_folder.checkpoint_paths(run_dir, steps)["model"]) == (
+            steps,
+            steps // 64,
+        )
+
+
 def test_a_run_with_the_largest_seed_resumes(tmp_path):
     """A resumed run draws a new stream seeded with seed + steps, wrapped into numpy's range."""
     run_dir = tmp_path / "run"
