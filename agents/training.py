@@ -393,10 +393,14 @@ class RolloutBoundary(BaseCallback):
 
 class StopWhenRequested(BaseCallback):
     """Ends ``learn()`` at the next env step once Ctrl-C or SIGTERM asked for it (see
-    :mod:`agents.interrupts`)."""
+    :mod:`agents.interrupts`). :attr:`stopped` says whether it did: a signal during the last
+    update comes after the last step, and ``learn()`` then finishes its training."""
+
+    stopped = False
 
     def _on_step(self) -> bool:
-        return not interrupts.requested()
+        self.stopped = interrupts.requested()
+        return not self.stopped
 
 
 class PeriodicCheckpoint(_Periodic):
@@ -791,8 +795,8 @@ def _learn(
     curriculum: dict | None = None,
     evaluation: PeriodicEvaluation | None = None,
 ) -> dict:
-    boundary = RolloutBoundary()
-    callbacks = [boundary, StopWhenRequested()]
+    boundary, stopper = RolloutBoundary(), StopWhenRequested()
+    callbacks = [boundary, stopper]
     level = level_callback(config.get("start_curriculum"), curriculum)
     if level is not None:
         callbacks.append(level)
@@ -813,7 +817,7 @@ def _learn(
                 progress_bar=progress_bar,
                 tb_log_name="run",
             )
-        if interrupts.requested():  # learn() returned early: save and exit as Ctrl-C does
+        if stopper.stopped:  # learn() returned early: save and exit as Ctrl-C does
             raise KeyboardInterrupt
     except KeyboardInterrupt:
         model.num_timesteps = boundary.steps
@@ -859,7 +863,15 @@ def _learn(
     # Written before the comparison too: a run stopped during it is trained, and --resume
     # then runs the comparison alone.
     run_folder.write_text_atomically(run_dir / run_folder.RESULT, json.dumps(result, indent=2))
-    return _final_comparison(run_dir, config, result) if config["final_episodes"] else result
+    if not config["final_episodes"]:
+        return result
+    if interrupts.requested():  # during the last update, which learn() finished
+        print(
+            "\ninterrupted after the last update; the trained run is saved. "
+            f"Run the comparison with: python train.py --resume {run_dir}"
+        )
+        raise KeyboardInterrupt
+    return _final_comparison(run_dir, config, result)
 
 
 def _final_comparison(run_dir: Path, config: dict, result: dict) -> dict:

@@ -550,6 +550,33 @@ def test_ppo_checkpoints_have_learned_from_every_step_they_are_labelled_with(tmp
         )
 
 
+def signal_during(monkeypatch, owner, name: str, when=lambda *args: True) -> None:
+    """Ctrl-C while ``owner.name`` runs (where ``when`` of its arguments holds), as a user
+    could press it there."""
+    original = getattr(owner, name)
+
+    def signalled(*args, **kwargs):
+        result = original(*args, **kwargs)
+        if when(*args):
+            signal.raise_signal(signal.SIGINT)
+        return result
+
+    monkeypatch.setattr(owner, name, signalled)
+
+
+def test_a_signal_during_the_last_update_leaves_the_trained_run(tmp_path, monkeypatch):
+    """learn() finishes the update a signal came in and has no step left to stop at: the run
+    is trained. It was saved as model_0_steps.zip (relabelled with the steps before that
+    update), with no model.zip and a --resume that said it had reached its 64 steps."""
+    signal_during(monkeypatch, PPO, "train")
+    run_dir = tmp_path / "run"
+    assert train.main(grasp_ppo_args(run_dir, 64, "--save-freq", "64")) == 0
+    assert run_folder.checkpoint_steps(run_dir) == [64]
+    assert saved_counts(run_folder.checkpoint_paths(run_dir, 64)["model"]) == (64, 1)
+    assert saved_counts(run_dir / run_folder.FINAL_MODEL) == (64, 1)
+    assert json.loads((run_dir / run_folder.RESULT).read_text())["timesteps"] == 64
+
+
 def test_a_run_with_the_largest_seed_resumes(tmp_path):
     """A resumed run draws a new stream seeded with seed + steps, wrapped into numpy's range."""
     run_dir = tmp_path / "run"
