@@ -513,7 +513,7 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         if config.get("init_from")
         else None
     )
-    created = not run_dir.exists()
+    before = set(run_dir.rglob("*")) if run_dir.is_dir() else None
     try:
         prepare_output_folder(run_dir)
     except OutputFolderError as error:
@@ -541,8 +541,7 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             load_trained_weights(model, trained)
     except BaseException:  # refused, or interrupted before a single step: nothing to keep
         _close_opened(venv, evaluation)
-        if created:
-            shutil.rmtree(run_dir, ignore_errors=True)
+        _remove_written(run_dir, before)
         raise
     if trained is not None and trained.replay_buffer is not None:
         # Its rewards are the trained run's: a changed reward kwarg applies to new ones only.
@@ -557,6 +556,19 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
         )
     return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
+
+
+def _remove_written(run_dir: Path, before: set[Path] | None) -> None:
+    """Removes what a start wrote: the run folder if it made it (``before`` is None), else
+    what it added to the folder's ``before`` contents."""
+    if before is None:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        return
+    for path in sorted(set(run_dir.rglob("*")) - before, reverse=True):  # contents first
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
 
 
 def _close_opened(venv, evaluation: PeriodicEvaluation | None) -> None:

@@ -201,6 +201,19 @@ def test_a_hyperparameter_sb3_refuses_leaves_no_run_folder(hyperparam, reason, t
     assert not run_dir.exists()
 
 
+def test_a_refused_start_in_an_existing_folder_removes_what_it_wrote(tmp_path, capsys):
+    """A refused start removed the run folder only when it had made it: in an existing one
+    it left config.yml, and the corrected command then found the folder holding a run."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    (run_dir / "notes.txt").write_text("the user's")
+    argv = ["--env", "InstrumentGrasp-v0", "--algo", "ppo", "--run-dir", str(run_dir)]
+    with pytest.raises(SystemExit) as exit_info:
+        train.main([*argv, "--env-kwargs", "max_grip_force=-5"])
+    assert exit_info.value.code == 2 and "max_grip_force" in capsys.readouterr().err
+    assert [path.name for path in run_dir.iterdir()] == ["notes.txt"]
+
+
 def test_a_run_folder_that_is_a_file_is_refused(tmp_path, capsys):
     taken = tmp_path / "run"
     taken.write_text("not a folder")
