@@ -8,9 +8,11 @@ suite). Inside SB3's buffer or optimiser code it could leave them half updated.
 
 So while training runs inside :func:`deferred`, the handler only records the request;
 a callback (``agents.training.StopWhenRequested``) ends ``learn()`` at the next env step
-and the run then saves its checkpoint as before. Outside it (parsing, set-up, the final
-evaluation) and for a second signal, the handler raises ``KeyboardInterrupt`` at once, so
-a run that no longer steps can still be stopped.
+and the run then saves its checkpoint as before. The block lasts until the trained run is
+saved, so a signal between the last step and the final checkpoint waits for it. Outside
+it (parsing, set-up, which a stopped start undoes, the final evaluation) and for a second
+signal, the handler raises ``KeyboardInterrupt`` at once, so a run that no longer steps
+can still be stopped.
 
 Worker processes of a ``SubprocVecEnv`` ignore both signals (:func:`ignore_in_worker`):
 Ctrl-C on a terminal, like a scheduler signalling a job's process group, reaches every

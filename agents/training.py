@@ -518,6 +518,19 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         prepare_output_folder(run_dir)
     except OutputFolderError as error:
         raise ConfigError(f"cannot make the run folder {str(run_dir)!r}: {error}") from error
+    try:
+        return _start(config, run_dir, trained, progress_bar)
+    except BaseException:
+        # Refused, or stopped before a first checkpoint: nothing to resume, and the config.yml
+        # left behind would refuse the next start in this folder.
+        if run_folder.latest_checkpoint(run_dir) is None:
+            _remove_written(run_dir, before)
+        raise
+
+
+def _start(config: dict, run_dir: Path, trained: TrainedStart | None, progress_bar: bool):
+    """Writes the new run's config, builds its envs and model, fills SAC's replay buffer
+    as configured and learns."""
     venv = evaluation = None
     try:
         run_folder.write_config(run_dir, config)
@@ -539,22 +552,21 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         model = _checked_model(config, venv, run_dir)
         if trained is not None:
             load_trained_weights(model, trained)
-    except BaseException:  # refused, or interrupted before a single step: nothing to keep
+            if trained.replay_buffer is not None:
+                # Its rewards are the trained run's: a changed reward kwarg applies to new ones.
+                run_folder.use_replay_buffer(model, trained.replay_buffer)
+        if config.get("demonstrations"):
+            added = seed_replay_buffer(model, config)
+            run_folder.write_text_atomically(
+                run_dir / run_folder.DEMONSTRATIONS, json.dumps(added, indent=2)
+            )
+            print(
+                f"replay buffer seeded with {added['transitions']} transitions of "
+                f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
+            )
+    except BaseException:
         _close_opened(venv, evaluation)
-        _remove_written(run_dir, before)
         raise
-    if trained is not None and trained.replay_buffer is not None:
-        # Its rewards are the trained run's: a changed reward kwarg applies to new ones only.
-        run_folder.use_replay_buffer(model, trained.replay_buffer)
-    if config.get("demonstrations"):
-        added = seed_replay_buffer(model, config)
-        run_folder.write_text_atomically(
-            run_dir / run_folder.DEMONSTRATIONS, json.dumps(added, indent=2)
-        )
-        print(
-            f"replay buffer seeded with {added['transitions']} transitions of "
-            f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
-        )
     return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
 
 
@@ -820,8 +832,10 @@ def _learn(
         # SB3's own silent logger would still make an empty tempdir/SB3-<time> folder per run.
         model.set_logger(Logger(folder=None, output_formats=[]))
     started = time.perf_counter()
-    try:
-        with interrupts.deferred():
+    # Until the trained run is saved: acted on between learn() and the final checkpoint, a
+    # signal left a folder that neither --resume nor a new start would take.
+    with interrupts.deferred():
+        try:
             model.learn(
                 total_timesteps=config["n_timesteps"] - model.num_timesteps,
                 callback=callbacks,
@@ -829,40 +843,54 @@ def _learn(
                 progress_bar=progress_bar,
                 tb_log_name="run",
             )
-        if stopper.stopped:  # learn() returned early: save and exit as Ctrl-C does
-            raise KeyboardInterrupt
-    except KeyboardInterrupt:
-        model.num_timesteps = boundary.steps
-        steps = save_checkpoint(model, run_dir, level)
-        print(
-            f"\ninterrupted at {steps} steps; checkpoint saved. "
-            f"Continue with: python train.py --resume {run_dir}"
-        )
-        raise
-    except Exception as error:  # a dying worker, a bug, or a setting SB3 cannot train with
-        model.num_timesteps = boundary.steps
-        steps = save_checkpoint(model, run_dir, level)
-        if isinstance(error, WORKER_GONE):
-            # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
-            what = (
-                f"a {config['env_id']} worker process of the vectorised env died; its "
-                "traceback is printed above and ends with the env and the step that failed."
+            if stopper.stopped:  # learn() returned early: save and exit as Ctrl-C does
+                raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            model.num_timesteps = boundary.steps
+            steps = save_checkpoint(model, run_dir, level)
+            print(
+                f"\ninterrupted at {steps} steps; checkpoint saved. "
+                f"Continue with: python train.py --resume {run_dir}"
             )
-        else:
-            what = f"training stopped on {type(error).__name__}: {error} (traceback above)."
-        raise RuntimeError(
-            f"{what} A checkpoint was saved at {steps} steps; "
-            f"after a fix, continue with: python train.py --resume {run_dir}"
-        ) from error
-    finally:
-        try:
-            model.get_env().close()
-        except WORKER_GONE:
-            pass  # a dead worker cannot be told to close
-        for callback in callbacks:
-            if isinstance(callback, PeriodicEvaluation):
-                callback.env.close()
-    seconds = time.perf_counter() - started
+            raise
+        except Exception as error:  # a dying worker, a bug, or a setting SB3 cannot train with
+            model.num_timesteps = boundary.steps
+            steps = save_checkpoint(model, run_dir, level)
+            if isinstance(error, WORKER_GONE):
+                # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
+                what = (
+                    f"a {config['env_id']} worker process of the vectorised env died; its "
+                    "traceback is printed above and ends with the env and the step that failed."
+                )
+            else:
+                what = f"training stopped on {type(error).__name__}: {error} (traceback above)."
+            raise RuntimeError(
+                f"{what} A checkpoint was saved at {steps} steps; "
+                f"after a fix, continue with: python train.py --resume {run_dir}"
+            ) from error
+        finally:
+            try:
+                model.get_env().close()
+            except WORKER_GONE:
+                pass  # a dead worker cannot be told to close
+            for callback in callbacks:
+                if isinstance(callback, PeriodicEvaluation):
+                    callback.env.close()
+        result = _save_trained(model, config, run_dir, level, time.perf_counter() - started)
+    if not config["final_episodes"]:
+        return result
+    if interrupts.requested():  # during the last update, which learn() finished
+        print(
+            "\ninterrupted after the last update; the trained run is saved. "
+            f"Run the comparison with: python train.py --resume {run_dir}"
+        )
+        raise KeyboardInterrupt
+    return _final_comparison(run_dir, config, result)
+
+
+def _save_trained(model, config: dict, run_dir: Path, level, seconds: float) -> dict:
+    """The final model, its checkpoint, the learning curve and result.json; returns the
+    result."""
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
         run_folder.save_atomically(normalizer.save, run_dir / run_folder.FINAL_NORMALIZER)
@@ -875,15 +903,7 @@ def _learn(
     # Written before the comparison too: a run stopped during it is trained, and --resume
     # then runs the comparison alone.
     run_folder.write_text_atomically(run_dir / run_folder.RESULT, json.dumps(result, indent=2))
-    if not config["final_episodes"]:
-        return result
-    if interrupts.requested():  # during the last update, which learn() finished
-        print(
-            "\ninterrupted after the last update; the trained run is saved. "
-            f"Run the comparison with: python train.py --resume {run_dir}"
-        )
-        raise KeyboardInterrupt
-    return _final_comparison(run_dir, config, result)
+    return result
 
 
 def _final_comparison(run_dir: Path, config: dict, result: dict) -> dict:

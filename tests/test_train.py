@@ -21,7 +21,7 @@ import yaml
 from stable_baselines3 import PPO
 
 import train
-from agents import run_folder
+from agents import run_folder, training
 from agents.config import ConfigError, parse_assignments
 from agents.evaluation import make_env
 from agents.training import load_policy
@@ -588,6 +588,37 @@ def test_a_signal_during_the_last_update_leaves_the_trained_run(tmp_path, monkey
     assert saved_counts(run_folder.checkpoint_paths(run_dir, 64)["model"]) == (64, 1)
     assert saved_counts(run_dir / run_folder.FINAL_MODEL) == (64, 1)
     assert json.loads((run_dir / run_folder.RESULT).read_text())["timesteps"] == 64
+
+
+def test_a_signal_while_the_trained_run_is_saved_waits_for_the_save(tmp_path, monkeypatch):
+    """Acted on between model.zip and the final checkpoint, a signal left no checkpoint and
+    no result.json: neither --resume nor a new start took the folder."""
+    final_model = lambda save, path: Path(path).name == run_folder.FINAL_MODEL  # noqa: E731
+    signal_during(monkeypatch, run_folder, "save_atomically", final_model)
+    run_dir = tmp_path / "run"
+    argv = grasp_ppo_args(run_dir, 64, "--save-freq", "0", "--final-episodes", "2")
+    assert train.main(argv) == 130  # the final comparison is left to --resume
+    assert run_folder.checkpoint_steps(run_dir) == [64]
+    assert json.loads((run_dir / run_folder.RESULT).read_text())["timesteps"] == 64
+    monkeypatch.undo()
+    assert train.main(["--resume", str(run_dir), "--no-progress-bar"]) == 0
+    assert "comparison" in json.loads((run_dir / run_folder.RESULT).read_text())
+
+
+def test_a_signal_before_the_first_step_leaves_no_run_folder(tmp_path, monkeypatch):
+    """Ctrl-C while demonstrations filled SAC's replay buffer (outside learn()) left config.yml
+    and no checkpoint: --resume found nothing to resume, a new start a run in the folder."""
+    monkeypatch.setattr(
+        training, "seed_replay_buffer", lambda *args: signal.raise_signal(signal.SIGINT)
+    )
+    run_dir = tmp_path / "run"
+    argv = [
+        *("--env", "InstrumentGrasp-v0", "--algo", "sac", "-n", "64", "--run-dir", str(run_dir)),
+        *("--eval-freq", "0", "--final-episodes", "0", "--no-progress-bar", "--hyperparams"),
+        *("buffer_size=500", "learning_starts=10", "demonstrations.episodes=1"),
+    ]
+    assert train.main(argv) == 130
+    assert not run_dir.exists()
 
 
 def test_a_run_with_the_largest_seed_resumes(tmp_path):
