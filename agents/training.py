@@ -85,6 +85,24 @@ WORKER_GONE = (EOFError, BrokenPipeError, ConnectionResetError)
 #: Periodic evaluation replays the same seeds each time (so its curve compares like with
 #: like), offset from the training seeds.
 PERIODIC_EVAL_SEED_OFFSET = 10_000
+#: What a resumed run takes for a setting its config.yml lacks (written before the setting
+#: existed, or edited by hand): what a new run takes when not told otherwise.
+SAVED_CONFIG_DEFAULTS = {
+    "n_envs": 1,
+    "vec_env": "dummy",
+    "policy": "MultiInputPolicy",
+    "demonstrations": None,
+    "start_curriculum": None,
+    "eval_env_kwargs": {},
+    "eval_freq": DEFAULT_EVAL_FREQ,
+    "eval_episodes": DEFAULT_EVAL_EPISODES,
+    "save_freq": DEFAULT_SAVE_FREQ,
+    "final_episodes": DEFAULT_FINAL_EPISODES,
+    "device": "auto",
+    "tensorboard": False,
+    "torch_threads": DEFAULT_TORCH_THREADS,
+    "init_from": None,
+}
 
 
 # --- configuration ---------------------------------------------------------------------------
@@ -724,7 +742,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     (off-policy algorithms) and the observation normaliser as they were saved. ``n_timesteps``
     may raise the run's total; ``overrides`` may change ``device`` or ``final_episodes``."""
     run_dir = Path(run_dir)
-    config = run_folder.read_config(run_dir)
+    config = {**SAVED_CONFIG_DEFAULTS, **run_folder.read_config(run_dir)}
     _check_saved_config(config, run_dir / run_folder.CONFIG)
     steps = run_folder.latest_checkpoint(run_dir)
     if steps is None:
@@ -741,7 +759,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
             raise ConfigError(f"resuming cannot change {key}; it can change {', '.join(checks)}")
         if value is not None:
             config[key] = checks[key](value)
-    config["device"] = check_device(config.get("device", "auto"))
+    config["device"] = check_device(config["device"])
     # Checked again: a hand-edited config.yml is caught, and an older run folder's entry gets
     # the settings added since with their defaults.
     config["start_curriculum"] = check_start_curriculum(
@@ -759,7 +777,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
             "pass a larger --timesteps to continue it"
         )
     paths = run_folder.checkpoint_paths(run_dir, steps)
-    torch.set_num_threads(config.get("torch_threads", DEFAULT_TORCH_THREADS))
+    torch.set_num_threads(config["torch_threads"])
     monitors_before = set((run_dir / run_folder.MONITOR).glob("*"))
     venv = evaluation = None
     try:
@@ -942,11 +960,13 @@ def _check_saved_config(config: dict, path: Path) -> None:
         require_known("algorithm", config["algo"], ALGOS)
         int_at_least("seed", config["seed"], minimum=0, maximum=MAX_SEED)
         int_at_least("n_timesteps", config["n_timesteps"])
-        int_at_least("n_envs", config.get("n_envs", 1))
-        require_known("vec_env", config.get("vec_env", "dummy"), tuple(VEC_ENVS))
+        int_at_least("n_envs", config["n_envs"])
+        require_known("vec_env", config["vec_env"], tuple(VEC_ENVS))
         for key in ("eval_freq", "save_freq", "final_episodes"):
-            int_at_least(key, config.get(key, 0), minimum=0)
-        int_at_least("eval_episodes", config.get("eval_episodes", 1))
+            int_at_least(key, config[key], minimum=0)
+        int_at_least("eval_episodes", config["eval_episodes"])
+        if not isinstance(config["tensorboard"], bool):
+            raise ConfigError(f"tensorboard must be true or false, got {config['tensorboard']!r}")
     except ConfigError as error:
         raise run_folder.RunFolderError(f"{str(path)!r}: {error}") from error
 

@@ -672,6 +672,28 @@ def test_a_damaged_config_is_refused_on_resume_before_the_folder_changes(
     assert {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()} == before
 
 
+def test_a_config_without_optional_settings_resumes_with_their_defaults(tmp_path):
+    """A config.yml without a setting train.py writes (from before it existed, or edited by
+    hand) failed --resume with a KeyError traceback."""
+    run_dir = tmp_path / "run"
+    assert train.main(grasp_ppo_args(run_dir, 64)) == 0
+    path = run_dir / run_folder.CONFIG
+    kept = [
+        line
+        for line in path.read_text().splitlines(keepends=True)
+        if not line.startswith(("tensorboard:", "vec_env:", "save_freq:", "torch_threads:"))
+    ]
+    path.write_text("".join(kept))
+    assert train.main(["--resume", str(run_dir), "-n", "128", "--no-progress-bar"]) == 0
+    config = yaml.safe_load(path.read_text())
+    assert (config["tensorboard"], config["vec_env"], config["torch_threads"]) == (
+        False,
+        "dummy",
+        1,
+    )
+    assert run_folder.latest_checkpoint(run_dir) == 128
+
+
 def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
     run_dir = tmp_path / "run"
     run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
