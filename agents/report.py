@@ -113,7 +113,8 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     }
     # The figures and videos come after every episode: write the numbers first, so that a
     # failure drawing them loses nothing.
-    _write_json(report, out)
+    report["wall_seconds"] = round(time.perf_counter() - started, 1)
+    _write_report(report, out)
     figures = _figures(report, out, settings)
     if settings.video_episodes:
         figures["videos"] = [
@@ -124,13 +125,17 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         ]
     report["figures"] = figures
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
-    _write_json(report, out)
-    (out / REPORT_MD).write_text(markdown(report))
+    _write_report(report, out)
     return report
 
 
-def _write_json(report: dict, out: Path) -> None:
-    (out / REPORT_JSON).write_text(json.dumps(report, indent=1, default=_json_default))
+def _write_report(report: dict, out: Path) -> None:
+    """report.json and report.md of ``report``. An earlier report's report.md goes first: a
+    stop between the two files must not leave it beside the new numbers it contradicts."""
+    (out / REPORT_MD).unlink(missing_ok=True)
+    text = json.dumps(report, indent=1, default=_json_default)
+    run_folder.write_text_atomically(out / REPORT_JSON, text)
+    run_folder.write_text_atomically(out / REPORT_MD, markdown(report))
 
 
 # ---------------------------------------------------------------------- running

@@ -537,3 +537,23 @@ def test_a_scan_with_nothing_fused_is_recorded_without_a_chamfer_distance():
     summary = _view_planning_summary(records)
     assert summary["chamfer"]["n"] == 1 and summary["chamfer"]["mean"] == records[0]["chamfer"]
     json.dumps(records, allow_nan=False)
+
+
+def test_a_report_stopped_after_its_numbers_leaves_no_earlier_report_md(tmp_path, monkeypatch):
+    """report.md was written last: a report stopped while drawing its figures left the
+    earlier report's report.md into the same --out beside its own report.json."""
+    import evaluate
+    from agents import report
+
+    out = tmp_path / "report"
+    argv = ["--env", "InstrumentGrasp-v0", "squeeze", "--baselines", "none", "--episodes", "1"]
+    argv += ["--out", str(out), "--no-progress-bar"]
+    assert evaluate.main(argv) == 0
+
+    def stopped(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report, "_figures", stopped)
+    assert evaluate.main([*argv, "--seed", "7"]) == 130
+    assert read_report(out)["seeds"] == [7, 7]
+    assert "seeds 7-7 " in (out / "report.md").read_text()
