@@ -30,7 +30,7 @@ from liuxing_envs.opengl import mujoco_import_problem, use_headless_default
 
 use_headless_default()
 
-from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
+from agents.config import MAX_SEED, ConfigError, parse_assignments, script_parser  # noqa: E402
 
 #: The envs' splits, written out so --help needs no env import (a test keeps them in step).
 OBJECT_SPLITS = ("train", "validation", "held_out", "all", "procedural")
@@ -109,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     for flag in ("seed", "reconstruct_episodes", "save_reconstructions"):
         if getattr(args, flag) < 0:
             parser.error(f"--{flag.replace('_', '-')} must be 0 or more")
+    if args.seed > MAX_SEED:  # as train.py's: torch's generator refused seeds from 2**64
+        parser.error(f"--seed must be at most {MAX_SEED}, got {args.seed}")
     if problem := mujoco_import_problem():
         parser.error(problem)
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.

@@ -86,6 +86,9 @@ def closest(name: str, allowed: Iterable[str]) -> str:
     return f" (did you mean {match[0]!r}?)" if match else ""
 
 
+MAX_SEED = 2**32 - 1  # numpy's generators take seeds up to here
+
+
 def int_at_least(name: str, value, minimum: int = 1, maximum: int | None = None) -> int:
     if (
         isinstance(value, bool)

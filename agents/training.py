@@ -36,6 +36,7 @@ import liuxing_envs
 from agents import interrupts, run_folder
 from agents.config import (
     ALGOS,
+    MAX_SEED,
     ConfigError,
     closest,
     deep_update,
@@ -70,7 +71,6 @@ VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
 DEFAULT_ENV_ID = "ViewPlanning-v0"
 DEFAULT_ALGO = "ppo"
 DEFAULT_SEED = 0
-MAX_SEED = 2**32 - 1  # numpy's generators take seeds up to here
 DEFAULT_EVAL_FREQ = 5_000  # env steps between periodic evaluations
 DEFAULT_EVAL_EPISODES = 20
 DEFAULT_SAVE_FREQ = 10_000  # env steps between checkpoints

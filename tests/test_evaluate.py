@@ -311,6 +311,10 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
         (["--env", "ViewPlanning-v0", "--episodes", "0"], "--episodes must be at least 1"),
         (["--env", "ViewPlanning-v0", "--seed", "-1"], "--seed must be 0 or more"),
         (
+            ["--env", "InstrumentGrasp-v0", "--seed", str(2**64), "--no-deterministic"],
+            "--seed must be at most 4294967295, got 18446744073709551616",
+        ),
+        (
             ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "objects=[no/such.obj]"],
             "mesh file not found: no/such.obj",
         ),
