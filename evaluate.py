@@ -125,6 +125,9 @@ def main(argv: list[str] | None = None) -> int:
         baselines = None
         if args.baselines is not None:
             names = [name.strip() for name in args.baselines.split(",") if name.strip()]
+            repeated = sorted({name for name in names if names.count(name) > 1})
+            if repeated:  # it would run twice, on the same episodes, under two labels
+                parser.error(f"--baselines names {', '.join(repeated)} more than once")
             baselines = [] if names == ["none"] else names
         contestants = contest.build_contestants(
             args.sources,

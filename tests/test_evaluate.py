@@ -302,6 +302,10 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
         (["--env", "ViewPlaning-v0", "four-view"], "did you mean 'ViewPlanning-v0'"),
         (["--env", "ViewPlanning-v0", "four-veiw"], "did you mean 'four-view'"),
         (["--env", "InstrumentGrasp-v0", "--baselines", "scripted"], "scripted-grasp"),
+        (
+            ["--env", "InstrumentGrasp-v0", "--baselines", "squeeze,random,squeeze"],
+            "--baselines names squeeze more than once",
+        ),
         (["runs/no/such/run"], "does not exist"),
         ([], "nothing to evaluate"),
         (
