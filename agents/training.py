@@ -865,6 +865,10 @@ def _learn(
                 raise KeyboardInterrupt
         except KeyboardInterrupt:
             model.num_timesteps = boundary.steps
+            if stopper.stopped and not isinstance(model, OnPolicyAlgorithm):
+                # SB3 asks the callbacks before it stores a step's transition: the step the
+                # stop came at is counted but not in the replay buffer.
+                model.num_timesteps -= model.n_envs
             steps = save_checkpoint(model, run_dir, level)
             print(
                 f"\ninterrupted at {steps} steps; checkpoint saved. "

@@ -563,6 +563,25 @@ def test_ppo_checkpoints_have_learned_from_every_step_they_are_labelled_with(tmp
         )
 
 
+def test_an_interrupted_sac_checkpoint_holds_a_transition_for_every_step_it_counts(
+    tmp_path, monkeypatch
+):
+    """SB3 asks the callbacks, which stop learn(), before it stores a step's transition: the
+    interrupt checkpoint counted one step more than its replay buffer held, and a run resumed
+    from it ended one transition short."""
+    from stable_baselines3 import SAC
+
+    signal_during(monkeypatch, SAC, "train")  # the first update, after learning_starts
+    run_dir = tmp_path / "run"
+    argv = quick_args("InstrumentGrasp-v0", "sac", run_dir, 500, n_envs=1)
+    assert train.main([*argv, "--save-freq", "0", "--eval-freq", "0"]) == 130
+    steps = run_folder.latest_checkpoint(run_dir)
+    buffer = run_folder.read_replay_buffer(
+        run_folder.checkpoint_paths(run_dir, steps)["replay_buffer"]
+    )
+    assert 64 <= steps < 500 and buffer.pos == steps and not buffer.full
+
+
 def signal_during(monkeypatch, owner, name: str, when=lambda *args: True) -> None:
     """Ctrl-C while ``owner.name`` runs (where ``when`` of its arguments holds), as a user
     could press it there."""
