@@ -71,6 +71,8 @@ VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
 DEFAULT_ENV_ID = "ViewPlanning-v0"
 DEFAULT_ALGO = "ppo"
 DEFAULT_SEED = 0
+#: The torch device types training is tested on (--device; "auto" picks one of them).
+SUPPORTED_DEVICE_TYPES = ("cpu", "cuda")
 DEFAULT_EVAL_FREQ = 5_000  # env steps between periodic evaluations
 DEFAULT_EVAL_EPISODES = 20
 DEFAULT_SAVE_FREQ = 10_000  # env steps between checkpoints
@@ -259,6 +261,13 @@ def check_device(device: str) -> str:
         raise ConfigError(
             f"device {device!r} is not a torch device (auto, cpu, cuda, cuda:N)"
         ) from error
+    if parsed is not None and parsed.type not in SUPPORTED_DEVICE_TYPES:
+        # torch names more (meta, mps, xpu, ...): meta crashed mid-run, the rest failed as
+        # "refused its hyper-parameters" or a "corrupt" checkpoint.
+        raise ConfigError(
+            f"device {device!r} is a {parsed.type} device; training runs on auto, cpu, cuda or "
+            "cuda:N"
+        )
     if parsed is not None and parsed.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(
             f"device {device!r} asked for CUDA, but this torch build ({torch.__version__}) "

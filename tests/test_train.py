@@ -138,6 +138,8 @@ def test_a_python_expression_stays_a_string():
         (["--init-from", "no/such/run"], "--init-from: run folder 'no/such/run' does not exist"),
         (["--init-replay-buffer"], "--init-replay-buffer needs --init-from RUN_DIR"),
         (["--device", "tpu"], "not a torch device"),
+        (["--device", "meta"], "is a meta device; training runs on auto, cpu, cuda or cuda:N"),
+        (["--device", "mps"], "is a mps device; training runs on"),
         (["--timesteps", "many"], "invalid int value"),
         (
             [
