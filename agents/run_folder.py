@@ -29,7 +29,7 @@ import re
 import subprocess
 import sys
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -324,12 +324,60 @@ def _evaluation_rows(run_dir: Path) -> list[dict]:
 def append_evaluation(run_dir: Path, row: dict) -> None:
     """Add a row to the history, rewriting the (small) file atomically; a damaged history
     is refused rather than extended."""
-    rows = [*_evaluation_rows(run_dir), row]
+    _write_evaluations(run_dir, [*_evaluation_rows(run_dir), row])
+
+
+def _write_evaluations(run_dir: Path, rows: list[dict]) -> None:
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=EVALUATION_FIELDS, lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
     write_text_atomically(Path(run_dir) / EVALUATIONS, buffer.getvalue())
+
+
+def forget_after_checkpoint(
+    run_dir: Path, steps: int, saved_at: float, monitors: Iterable[Path]
+) -> tuple[int, int]:
+    """Drops what a run recorded after its checkpoint at ``steps`` (saved at ``saved_at``,
+    seconds since the epoch) and before it died without saving again (killed, out of
+    memory, power lost): a resume goes on from the checkpoint, so those steps are trained
+    again, and their evaluations and episodes, kept, would be counted twice. Periodic
+    evaluations past ``steps`` leave the history, and with them the best model if one of
+    them made it; episodes that ended after ``saved_at`` leave the ``monitors`` files.
+    Returns how many evaluations and episodes were dropped."""
+    rows = _evaluation_rows(run_dir)
+    kept = [row for row in rows if float(row["timesteps"]) <= steps]
+    if len(kept) < len(rows):
+        best_kept = max((float(row["mean_return"]) for row in kept), default=-float("inf"))
+        if max(float(row["mean_return"]) for row in rows) > best_kept:
+            for name in (BEST_MODEL, BEST_NORMALIZER):
+                (Path(run_dir) / name).unlink(missing_ok=True)
+        _write_evaluations(run_dir, kept)
+    episodes = sum(_drop_episodes_after(path, saved_at) for path in monitors)
+    return len(rows) - len(kept), episodes
+
+
+def _drop_episodes_after(path: Path, saved_at: float) -> int:
+    """Rewrites an SB3 Monitor file without the episodes that ended after ``saved_at`` (and
+    a last line a crash cut short); returns how many rows went."""
+    if not path.name.endswith(".monitor.csv"):
+        return 0
+    lines = path.read_text().splitlines(keepends=True)
+    try:
+        start = float(json.loads(lines[0].lstrip("#"))["t_start"])
+        column = next(csv.reader([lines[1]])).index("t")
+    except (IndexError, ValueError, KeyError, TypeError):
+        return 0  # no episode in it, or not a Monitor file: nothing to place in time
+    kept = []
+    for line in lines[2:]:
+        try:
+            if start + float(next(csv.reader([line]))[column]) <= saved_at:
+                kept.append(line)
+        except (IndexError, ValueError, StopIteration):
+            continue
+    if len(kept) < len(lines) - 2:
+        write_text_atomically(path, "".join([*lines[:2], *kept]))
+    return len(lines) - 2 - len(kept)
 
 
 #: What a shipped policy keeps of its run: enough to load, evaluate and reproduce it.

@@ -475,9 +475,17 @@ class PeriodicEvaluation(_Periodic):
         self.env = make_env(config["env_id"], env_kwargs)
         first_seed = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
         self.seeds = range(first_seed, first_seed + config["eval_episodes"])
-        history = run_folder.read_evaluations(run_dir)
-        self.best = max((row["mean_return"] for row in history), default=-np.inf)
+        self.best = self.best_so_far()
         self.started = time.perf_counter()
+
+    def best_so_far(self) -> float:
+        """The best mean return of the history, which the next evaluation must beat to make
+        the best model: any, where there is no best model (it came from steps a resumed run
+        discarded, or was removed)."""
+        if not (self.run_dir / run_folder.BEST_MODEL).is_file():
+            return -np.inf
+        history = run_folder.read_evaluations(self.run_dir)
+        return max((row["mean_return"] for row in history), default=-np.inf)
 
     def _on_training_start(self) -> None:
         super()._on_training_start()
@@ -819,6 +827,17 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
         for path in set((run_dir / run_folder.MONITOR).glob("*")) - monitors_before:
             path.unlink(missing_ok=True)
         raise
+    dropped = run_folder.forget_after_checkpoint(
+        run_dir, steps, paths["model"].stat().st_mtime, monitors_before
+    )
+    if any(dropped):
+        print(
+            f"the run had gone on past its checkpoint at {steps} steps without saving again "
+            f"(killed?): {dropped[0]} periodic evaluations and {dropped[1]} training episodes "
+            "after it are dropped, as those steps are trained again"
+        )
+        if evaluation is not None:
+            evaluation.best = evaluation.best_so_far()
     run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
     # A new stream: the resumed run must not replay the episodes it has already seen.
     model.set_random_seed((config["seed"] + steps) % (MAX_SEED + 1))

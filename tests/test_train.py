@@ -584,6 +584,29 @@ def test_an_interrupted_sac_checkpoint_holds_a_transition_for_every_step_it_coun
     assert 64 <= steps < 500 and buffer.pos == steps and not buffer.full
 
 
+def test_a_run_killed_after_a_checkpoint_resumes_without_counting_steps_twice(tmp_path):
+    """Killed (out of memory, SIGKILL) after its checkpoint at 32 steps, a run had logged
+    evaluations and episodes to 96: resumed from 32, its history went 32, 64, 96, 64, 96 and
+    its learning curve counted the episodes of those steps twice."""
+    from agents.plotting import training_returns
+
+    run_dir = tmp_path / "run"
+    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    assert train.main([*argv, "--save-freq", "32", "--eval-freq", "32"]) == 0
+    assert training_returns(run_dir)[0][-1] == 96  # 24 episodes of 4 views
+    for steps in (64, 96):  # what the killed process had not saved yet
+        for path in run_folder.checkpoint_paths(run_dir, steps).values():
+            path.unlink(missing_ok=True)
+    for name in (run_folder.FINAL_MODEL, run_folder.RESULT):
+        (run_dir / name).unlink()
+    assert [row["timesteps"] for row in run_folder.read_evaluations(run_dir)] == [32, 64, 96]
+    assert train.main(["--resume", str(run_dir), "--no-progress-bar"]) == 0
+    history = run_folder.read_evaluations(run_dir)
+    assert [row["timesteps"] for row in history] == [32, 64, 96]
+    assert (run_dir / run_folder.BEST_MODEL).is_file()
+    assert training_returns(run_dir)[0][-1] == 96  # each step's episode counted once
+
+
 def signal_during(monkeypatch, owner, name: str, when=lambda *args: True) -> None:
     """Ctrl-C while ``owner.name`` runs (where ``when`` of its arguments holds), as a user
     could press it there."""
