@@ -27,3 +27,12 @@ def run_script(
     if check and result.returncode != 0:
         raise AssertionError(f"{script} failed ({result.returncode}):\n{result.stderr[-3000:]}")
     return result
+
+
+def outcomes_without_opengl(code: str):
+    """The JSON that ``code`` prints last, run in a fresh interpreter with MuJoCo's OpenGL
+    disabled (``MUJOCO_GL`` is read once, when mujoco is imported)."""
+    import json
+
+    result = run_script("-c", code, timeout=120, env={"MUJOCO_GL": "disable"})
+    return json.loads(result.stdout.splitlines()[-1])

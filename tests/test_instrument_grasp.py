@@ -1,11 +1,7 @@
 """InstrumentGrasp-v0: API conformance, reward bookkeeping, determinism, the scripted baselines
 against the force limit, bad input, and physics sanity under random actions."""
 
-import json
-import os
 import pickle
-import subprocess
-import sys
 
 import gymnasium as gym
 import mujoco
@@ -23,6 +19,7 @@ from liuxing_envs.envs.instrument_grasp import (
     InstrumentGraspEnv,
 )
 from liuxing_envs.sim.gripper import MAX_OPENING
+from tests.scripts import outcomes_without_opengl
 
 REWARD_TERMS = (
     "reward_reach",
@@ -579,15 +576,7 @@ print(json.dumps(outcomes))
 def test_settings_that_render_are_refused_when_made_without_opengl():
     # MUJOCO_GL is read when mujoco is imported: a fresh interpreter. The renderers used to
     # be made without complaint and fail in reset() or render() with an AttributeError.
-    result = subprocess.run(
-        [sys.executable, "-c", _NO_GL_SCRIPT],
-        env={**os.environ, "MUJOCO_GL": "disable"},
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    )
-    rgbd, gl_depth, render, depth, gl_unused = json.loads(result.stdout.splitlines()[-1])
+    rgbd, gl_depth, render, depth, gl_unused = outcomes_without_opengl(_NO_GL_SCRIPT)
     for message, keyword, instead in (
         (rgbd, "obs_mode='rgbd'", "obs_mode='depth'"),
         (gl_depth, "depth_backend='gl'", "depth_backend='auto'"),

@@ -1,11 +1,7 @@
 """ViewPlanning-v0: API conformance, reward bookkeeping, coverage, determinism, bad input."""
 
 import gc
-import json
-import os
 import pickle
-import subprocess
-import sys
 import warnings
 import weakref
 
@@ -19,6 +15,7 @@ import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
 from liuxing_envs.envs.view_planning import DEFAULT_VIEW_BUDGET, ViewPlanningEnv
 from liuxing_envs.sim.viewpoints import look_at
+from tests.scripts import outcomes_without_opengl
 
 ENV_ID = "ViewPlanning-v0"
 #: Small and fast settings shared by most tests (3 objects, one scale).
@@ -705,15 +702,7 @@ print(json.dumps(outcomes))
 def test_settings_that_render_are_refused_when_made_without_opengl():
     # MUJOCO_GL is read when mujoco is imported: a fresh interpreter. They used to fail at
     # the first image with an AttributeError naming no setting.
-    result = subprocess.run(
-        [sys.executable, "-c", _NO_GL_SCRIPT],
-        env={**os.environ, "MUJOCO_GL": "disable"},
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    )
-    gl_depth, render, auto = json.loads(result.stdout.splitlines()[-1])
+    gl_depth, render, auto = outcomes_without_opengl(_NO_GL_SCRIPT)
     assert gl_depth.startswith("depth_backend='gl' needs OpenGL"), gl_depth
     assert render.startswith("render_mode='rgb_array' needs OpenGL"), render
     assert auto == "raycast"
