@@ -3,8 +3,6 @@ with the training episodes' returns behind them) and the evaluation report's fig
 
 from __future__ import annotations
 
-import csv
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,22 +14,13 @@ SMOOTHING_EPISODES = 100
 
 
 def training_returns(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(cumulative env steps, episode return) of every training episode, in time order.
-
-    A monitor file's ``t`` counts from its own start (its JSON header's ``t_start``), and a
-    resumed run writes new files: episodes are ordered by ``t_start + t``."""
+    """(cumulative env steps, episode return) of every training episode, in time order: a
+    resumed run writes new monitor files (see :func:`agents.run_folder.read_monitor`)."""
     rows = []
     for path in sorted((Path(run_dir) / run_folder.MONITOR).glob("*.monitor.csv")):
-        with open(path, newline="") as handle:
-            try:
-                start = float(json.loads(handle.readline().lstrip("#"))["t_start"])
-            except (ValueError, KeyError, TypeError):
-                continue  # empty or cut short by a crash: nothing to place in time
-            for row in csv.DictReader(handle):
-                try:
-                    rows.append((start + float(row["t"]), float(row["r"]), int(row["l"])))
-                except (ValueError, TypeError):
-                    continue  # a last line cut short by a crash
+        monitor = run_folder.read_monitor(path)
+        if monitor is not None:
+            rows += [(end, reward, length) for end, reward, length, _ in monitor.episodes]
     if not rows:
         return np.zeros(0), np.zeros(0)
     rows.sort()

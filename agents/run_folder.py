@@ -21,6 +21,7 @@ from __future__ import annotations
 import csv
 import importlib.metadata
 import io
+import itertools
 import json
 import os
 import pickle
@@ -32,6 +33,7 @@ import zipfile
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NamedTuple
 
 import yaml
 
@@ -47,6 +49,22 @@ TENSORBOARD = "tensorboard"
 LEARNING_CURVE = "learning_curve.png"
 RESULT = "result.json"
 DEMONSTRATIONS = "demonstrations.json"
+
+#: Everything a run writes into its folder.
+ENTRIES = (
+    CONFIG,
+    FINAL_MODEL,
+    FINAL_NORMALIZER,
+    BEST_MODEL,
+    BEST_NORMALIZER,
+    CHECKPOINTS,
+    EVALUATIONS,
+    MONITOR,
+    TENSORBOARD,
+    LEARNING_CURVE,
+    RESULT,
+    DEMONSTRATIONS,
+)
 
 _CHECKPOINT = re.compile(r"model_(\d+)_steps\.zip")
 #: What a truncated, corrupt or foreign model, normaliser or replay-buffer file raises on load.
@@ -335,49 +353,94 @@ def _write_evaluations(run_dir: Path, rows: list[dict]) -> None:
     write_text_atomically(Path(run_dir) / EVALUATIONS, buffer.getvalue())
 
 
-def forget_after_checkpoint(
-    run_dir: Path, steps: int, saved_at: float, monitors: Iterable[Path]
-) -> tuple[int, int]:
-    """Drops what a run recorded after its checkpoint at ``steps`` (saved at ``saved_at``,
-    seconds since the epoch) and before it died without saving again (killed, out of
-    memory, power lost): a resume goes on from the checkpoint, so those steps are trained
-    again, and their evaluations and episodes, kept, would be counted twice. Periodic
-    evaluations past ``steps`` leave the history, and with them the best model if one of
-    them made it; episodes that ended after ``saved_at`` leave the ``monitors`` files.
-    Returns how many evaluations and episodes were dropped."""
-    rows = _evaluation_rows(run_dir)
-    kept = [row for row in rows if float(row["timesteps"]) <= steps]
-    if len(kept) < len(rows):
-        best_kept = max((float(row["mean_return"]) for row in kept), default=-float("inf"))
-        if max(float(row["mean_return"]) for row in rows) > best_kept:
-            for name in (BEST_MODEL, BEST_NORMALIZER):
-                (Path(run_dir) / name).unlink(missing_ok=True)
-        _write_evaluations(run_dir, kept)
-    episodes = sum(_drop_episodes_after(path, saved_at) for path in monitors)
-    return len(rows) - len(kept), episodes
+class MonitorFile(NamedTuple):
+    """An SB3 Monitor file: its two header lines, and per complete episode its end (seconds
+    since the epoch), return, length and line as written."""
+
+    header: list[str]
+    episodes: list[tuple[float, float, int, str]]
 
 
-def _drop_episodes_after(path: Path, saved_at: float) -> int:
-    """Rewrites an SB3 Monitor file without the episodes that ended after ``saved_at`` (and
-    a last line a crash cut short); returns how many rows went."""
-    if not path.name.endswith(".monitor.csv"):
-        return 0
-    lines = path.read_text().splitlines(keepends=True)
+def read_monitor(path: Path) -> MonitorFile | None:
+    """The Monitor file at ``path``; None when it holds no episode to place in time (empty,
+    not a Monitor file, or cut short by a crash before its header). A row a crash cut short
+    is left out. ``t`` counts from the file's own start (its JSON header's ``t_start``)."""
     try:
+        lines = Path(path).read_text().splitlines(keepends=True)
         start = float(json.loads(lines[0].lstrip("#"))["t_start"])
-        column = next(csv.reader([lines[1]])).index("t")
-    except (IndexError, ValueError, KeyError, TypeError):
-        return 0  # no episode in it, or not a Monitor file: nothing to place in time
-    kept = []
+        columns = next(csv.reader([lines[1]]))
+    except (OSError, UnicodeDecodeError, IndexError, ValueError, KeyError, TypeError):
+        return None
+    episodes = []
     for line in lines[2:]:
         try:
-            if start + float(next(csv.reader([line]))[column]) <= saved_at:
-                kept.append(line)
-        except (IndexError, ValueError, StopIteration):
+            row = dict(zip(columns, next(csv.reader([line])), strict=True))
+            episodes.append((start + float(row["t"]), float(row["r"]), int(row["l"]), line))
+        except (ValueError, KeyError, StopIteration):
             continue
-    if len(kept) < len(lines) - 2:
-        write_text_atomically(path, "".join([*lines[:2], *kept]))
-    return len(lines) - 2 - len(kept)
+    return MonitorFile(lines[:2], episodes)
+
+
+class Forgetting(NamedTuple):
+    """What :func:`forget_after_checkpoint` found to drop; :func:`forget` drops it."""
+
+    evaluations: list[dict]  #: the history's rows to keep
+    dropped_evaluations: int
+    best_model_discarded: bool
+    monitors: dict[Path, MonitorFile]  #: the files to rewrite, with the episodes they keep
+    dropped_episodes: int
+
+
+def forget_after_checkpoint(run_dir: Path, steps: int, monitors: Iterable[Path]) -> Forgetting:
+    """What a run recorded after its checkpoint at ``steps``, which a resume from it trains
+    again (a run killed without saving, or a PPO run stopped half-way through a rollout):
+    periodic evaluations past ``steps``, the best model if it came from those steps, and the
+    training episodes of the ``monitors`` files beyond the first ``steps`` env steps in time
+    order. Kept, they would be counted twice. Reads and checks all; nothing changes until
+    :func:`forget`, so a resume refused in between leaves the folder as it was."""
+    rows = _evaluation_rows(run_dir)
+    kept = [row for row in rows if float(row["timesteps"]) <= steps]
+    best = best_model_steps(run_dir)
+    files = {path: found for path in monitors if (found := read_monitor(path)) is not None}
+    in_time_order = sorted(
+        (episode[0], episode[2], path, index)
+        for path, file in files.items()
+        for index, episode in enumerate(file.episodes)
+    )
+    ends_at = itertools.accumulate(length for _, length, _, _ in in_time_order)
+    dropped = {
+        (path, index)
+        for (_, _, path, index), total in zip(in_time_order, ends_at, strict=True)
+        if total > steps
+    }
+    rewritten = {}
+    for path, file in files.items():
+        episodes = [e for index, e in enumerate(file.episodes) if (path, index) not in dropped]
+        if len(episodes) < len(file.episodes):
+            rewritten[path] = MonitorFile(file.header, episodes)
+    return Forgetting(
+        kept, len(rows) - len(kept), best is not None and best > steps, rewritten, len(dropped)
+    )
+
+
+def forget(run_dir: Path, forgetting: Forgetting) -> None:
+    """Drops what :func:`forget_after_checkpoint` found."""
+    if forgetting.dropped_evaluations:
+        _write_evaluations(run_dir, forgetting.evaluations)
+    if forgetting.best_model_discarded:
+        for name in (BEST_MODEL, BEST_NORMALIZER):
+            (Path(run_dir) / name).unlink(missing_ok=True)
+    for path, file in forgetting.monitors.items():
+        write_text_atomically(path, "".join([*file.header, *(e[3] for e in file.episodes)]))
+
+
+def best_model_steps(run_dir: Path) -> int | None:
+    """The step count the best model was saved at (None without one, or if unreadable)."""
+    try:
+        with zipfile.ZipFile(Path(run_dir) / BEST_MODEL) as archive:
+            return int(json.loads(archive.read("data"))["num_timesteps"])
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError, TypeError):
+        return None
 
 
 #: What a shipped policy keeps of its run: enough to load, evaluate and reproduce it.

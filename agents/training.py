@@ -71,6 +71,9 @@ VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
 DEFAULT_ENV_ID = "ViewPlanning-v0"
 DEFAULT_ALGO = "ppo"
 DEFAULT_SEED = 0
+DEFAULT_VEC_ENV = "dummy"
+DEFAULT_DEVICE = "auto"
+DEFAULT_POLICY = "MultiInputPolicy"
 #: The torch device types training is tested on (--device; "auto" picks one of them).
 SUPPORTED_DEVICE_TYPES = ("cpu", "cuda")
 DEFAULT_EVAL_FREQ = 5_000  # env steps between periodic evaluations
@@ -91,8 +94,8 @@ PERIODIC_EVAL_SEED_OFFSET = 10_000
 #: existed, or edited by hand): what a new run takes when not told otherwise.
 SAVED_CONFIG_DEFAULTS = {
     "n_envs": 1,
-    "vec_env": "dummy",
-    "policy": "MultiInputPolicy",
+    "vec_env": DEFAULT_VEC_ENV,
+    "policy": DEFAULT_POLICY,
     "demonstrations": None,
     "start_curriculum": None,
     "eval_env_kwargs": {},
@@ -100,7 +103,7 @@ SAVED_CONFIG_DEFAULTS = {
     "eval_episodes": DEFAULT_EVAL_EPISODES,
     "save_freq": DEFAULT_SAVE_FREQ,
     "final_episodes": DEFAULT_FINAL_EPISODES,
-    "device": "auto",
+    "device": DEFAULT_DEVICE,
     "tensorboard": False,
     "torch_threads": DEFAULT_TORCH_THREADS,
     "init_from": None,
@@ -120,12 +123,12 @@ def resolve_config(
     seed: int = DEFAULT_SEED,
     n_timesteps: int | None = None,
     n_envs: int | None = None,
-    vec_env: str = "dummy",
+    vec_env: str = DEFAULT_VEC_ENV,
     eval_freq: int = DEFAULT_EVAL_FREQ,
     eval_episodes: int = DEFAULT_EVAL_EPISODES,
     save_freq: int = DEFAULT_SAVE_FREQ,
     final_episodes: int = DEFAULT_FINAL_EPISODES,
-    device: str = "auto",
+    device: str = DEFAULT_DEVICE,
     tensorboard: bool = False,
     torch_threads: int = DEFAULT_TORCH_THREADS,
     init_from: str | None = None,
@@ -161,7 +164,7 @@ def resolve_config(
             "n-envs", n_envs if n_envs is not None else harness.get("n_envs", 1)
         ),
         "vec_env": vec_env,
-        "policy": harness.get("policy", "MultiInputPolicy"),
+        "policy": harness.get("policy", DEFAULT_POLICY),
         "normalize": normalize,
         "demonstrations": check_demonstrations(env_id, algo, harness.get("demonstrations")),
         "start_curriculum": check_start_curriculum(env_id, harness.get("start_curriculum")),
@@ -479,13 +482,14 @@ class PeriodicEvaluation(_Periodic):
         self.started = time.perf_counter()
 
     def best_so_far(self) -> float:
-        """The best mean return of the history, which the next evaluation must beat to make
-        the best model: any, where there is no best model (it came from steps a resumed run
-        discarded, or was removed)."""
-        if not (self.run_dir / run_folder.BEST_MODEL).is_file():
-            return -np.inf
+        """The mean return of the best model's evaluation, which the next one must beat to
+        replace it: any, where there is no best model (it came from steps a resumed run
+        trains again, or was removed)."""
+        steps = run_folder.best_model_steps(self.run_dir)
         history = run_folder.read_evaluations(self.run_dir)
-        return max((row["mean_return"] for row in history), default=-np.inf)
+        return max(
+            (row["mean_return"] for row in history if row["timesteps"] == steps), default=-np.inf
+        )
 
     def _on_training_start(self) -> None:
         super()._on_training_start()
@@ -548,24 +552,24 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         if config.get("init_from")
         else None
     )
-    before = set(run_dir.rglob("*")) if run_dir.is_dir() else None
+    before = {path.name for path in run_dir.iterdir()} if run_dir.is_dir() else None
     try:
         prepare_output_folder(run_dir)
     except OutputFolderError as error:
         raise ConfigError(f"cannot make the run folder {str(run_dir)!r}: {error}") from error
     try:
-        return _start(config, run_dir, trained, progress_bar)
+        model, evaluation = _start(config, run_dir, trained)
     except BaseException:
-        # Refused, or stopped before a first checkpoint: nothing to resume, and the config.yml
-        # left behind would refuse the next start in this folder.
-        if run_folder.latest_checkpoint(run_dir) is None:
-            _remove_written(run_dir, before)
+        # Refused, or stopped while setting up (SAC's demonstrations take minutes): nothing
+        # to resume, and the config.yml left behind would refuse the next start here.
+        _remove_written(run_dir, before)
         raise
+    return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
 
 
-def _start(config: dict, run_dir: Path, trained: TrainedStart | None, progress_bar: bool):
-    """Writes the new run's config, builds its envs and model, fills SAC's replay buffer
-    as configured and learns."""
+def _start(config: dict, run_dir: Path, trained: TrainedStart | None):
+    """Writes the new run's config and builds its envs, model and periodic evaluation,
+    SAC's replay buffer filled as configured; closes what it opened if it fails."""
     venv = evaluation = None
     try:
         run_folder.write_config(run_dir, config)
@@ -602,16 +606,18 @@ def _start(config: dict, run_dir: Path, trained: TrainedStart | None, progress_b
     except BaseException:
         _close_opened(venv, evaluation)
         raise
-    return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
+    return model, evaluation
 
 
-def _remove_written(run_dir: Path, before: set[Path] | None) -> None:
-    """Removes what a start wrote: the run folder if it made it (``before`` is None), else
-    what it added to the folder's ``before`` contents."""
+def _remove_written(run_dir: Path, before: set[str] | None) -> None:
+    """Removes what a start that never trained wrote: the run folder if it made it
+    (``before`` is None), else the run's own files and folders the folder did not hold
+    (``before``: its entries' names); anything else, another process's say, stays."""
     if before is None:
         shutil.rmtree(run_dir, ignore_errors=True)
         return
-    for path in sorted(set(run_dir.rglob("*")) - before, reverse=True):  # contents first
+    for name in set(run_folder.ENTRIES) - before:
+        path = run_dir / name
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path, ignore_errors=True)
         else:
@@ -821,20 +827,22 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
                 file=sys.stderr,
             )
         curriculum_state = run_folder.read_curriculum_state(paths["curriculum"])
+        forgetting = run_folder.forget_after_checkpoint(
+            run_dir, steps, (p for p in monitors_before if p.name.endswith(".monitor.csv"))
+        )
         evaluation = _periodic_evaluation(config, run_dir, venv)
     except BaseException:  # refused: the run folder is left as it was
         _close_opened(venv, evaluation)
         for path in set((run_dir / run_folder.MONITOR).glob("*")) - monitors_before:
             path.unlink(missing_ok=True)
         raise
-    dropped = run_folder.forget_after_checkpoint(
-        run_dir, steps, paths["model"].stat().st_mtime, monitors_before
-    )
-    if any(dropped):
+    run_folder.forget(run_dir, forgetting)
+    if forgetting.dropped_evaluations or forgetting.dropped_episodes:
         print(
-            f"the run had gone on past its checkpoint at {steps} steps without saving again "
-            f"(killed?): {dropped[0]} periodic evaluations and {dropped[1]} training episodes "
-            "after it are dropped, as those steps are trained again"
+            f"the run had gone on past its checkpoint at {steps} steps: "
+            f"{forgetting.dropped_evaluations} periodic evaluations and "
+            f"{forgetting.dropped_episodes} training episodes after it are dropped, as those "
+            "steps are trained again"
         )
         if evaluation is not None:
             evaluation.best = evaluation.best_so_far()
@@ -927,14 +935,15 @@ def _learn(
                 if isinstance(callback, PeriodicEvaluation):
                     callback.env.close()
         result = _save_trained(model, config, run_dir, level, time.perf_counter() - started)
-    if not config["final_episodes"]:
-        return result
-    if interrupts.requested():  # during the last update, which learn() finished
+    if interrupts.requested():  # after the last step (its update, or the saving) ended
+        comparison = f" Run the comparison with: python train.py --resume {run_dir}"
         print(
-            "\ninterrupted after the last update; the trained run is saved. "
-            f"Run the comparison with: python train.py --resume {run_dir}"
+            "\ninterrupted after the last step; the trained run is saved."
+            + (comparison if config["final_episodes"] else "")
         )
         raise KeyboardInterrupt
+    if not config["final_episodes"]:
+        return result
     return _final_comparison(run_dir, config, result)
 
 

@@ -607,6 +607,70 @@ def test_a_run_killed_after_a_checkpoint_resumes_without_counting_steps_twice(tm
     assert training_returns(run_dir)[0][-1] == 96  # each step's episode counted once
 
 
+def test_a_run_stopped_half_way_through_a_rollout_counts_its_episodes_once(tmp_path, monkeypatch):
+    """Its checkpoint is labelled with the rollout's start, and the episodes of the rollout's
+    first half, trained again after --resume, were counted twice: the learning curve of a
+    96-step run ended at 112 steps."""
+    from agents.plotting import training_returns
+
+    original = training.RolloutBoundary._on_step
+
+    def signal_at_48(self):
+        if self.model.num_timesteps == 48:  # half-way through the second 32-step rollout
+            signal.raise_signal(signal.SIGINT)
+        return original(self)
+
+    monkeypatch.setattr(training.RolloutBoundary, "_on_step", signal_at_48)
+    run_dir = tmp_path / "run"
+    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    assert train.main([*argv, "--save-freq", "0", "--eval-freq", "0"]) == 130
+    assert run_folder.latest_checkpoint(run_dir) == 32
+    monkeypatch.undo()
+    assert train.main(["--resume", str(run_dir), "--no-progress-bar"]) == 0
+    assert training_returns(run_dir)[0][-1] == 96
+
+
+def test_a_failure_after_training_keeps_the_run_folder(tmp_path, monkeypatch):
+    """With no checkpoint yet (--save-freq 0), a start that failed as late as saving the
+    trained model (a full disk) was treated as refused and its whole folder removed, best
+    model and evaluations included."""
+    original = run_folder.save_atomically
+
+    def disk_full(save, path):
+        if Path(path).name == run_folder.FINAL_MODEL:
+            raise OSError(28, "No space left on device")
+        return original(save, path)
+
+    monkeypatch.setattr(run_folder, "save_atomically", disk_full)
+    run_dir = tmp_path / "run"
+    with pytest.raises(OSError, match="No space left"):
+        train.main(grasp_ppo_args(run_dir, 128, "--save-freq", "0", "--eval-freq", "64"))
+    assert (run_dir / run_folder.BEST_MODEL).is_file()
+    assert len(run_folder.read_evaluations(run_dir)) == 2
+
+
+def test_forgetting_drops_a_best_model_made_after_the_checkpoint(tmp_path):
+    """The best model is dropped when it was saved past the checkpoint, whatever the
+    history's best return: a model from steps trained again must not stay the best."""
+    import zipfile
+
+    run_dir = tmp_path
+    for steps, mean_return in ((32, 5.0), (64, 3.0), (96, 4.0)):
+        run_folder.append_evaluation(
+            run_dir,
+            {"timesteps": steps, "mean_return": mean_return, "std_return": 0.0}
+            | {"mean_metric": 0.0, "wall_seconds": 1.0},
+        )
+    with zipfile.ZipFile(run_dir / run_folder.BEST_MODEL, "w") as archive:
+        archive.writestr("data", json.dumps({"num_timesteps": 96}))
+    found = run_folder.forget_after_checkpoint(run_dir, 64, ())
+    assert found.dropped_evaluations == 1 and found.best_model_discarded
+    assert (run_dir / run_folder.BEST_MODEL).is_file()  # nothing changes until forget()
+    run_folder.forget(run_dir, found)
+    assert [row["timesteps"] for row in run_folder.read_evaluations(run_dir)] == [32, 64]
+    assert not (run_dir / run_folder.BEST_MODEL).exists()
+
+
 def signal_during(monkeypatch, owner, name: str, when=lambda *args: True) -> None:
     """Ctrl-C while ``owner.name`` runs (where ``when`` of its arguments holds), as a user
     could press it there."""
@@ -627,7 +691,8 @@ def test_a_signal_during_the_last_update_leaves_the_trained_run(tmp_path, monkey
     update), with no model.zip and a --resume that said it had reached its 64 steps."""
     signal_during(monkeypatch, PPO, "train")
     run_dir = tmp_path / "run"
-    assert train.main(grasp_ppo_args(run_dir, 64, "--save-freq", "64")) == 0
+    # Acknowledged (exit 130: the run's 64 steps were all trained and saved).
+    assert train.main(grasp_ppo_args(run_dir, 64, "--save-freq", "64")) == 130
     assert run_folder.checkpoint_steps(run_dir) == [64]
     assert saved_counts(run_folder.checkpoint_paths(run_dir, 64)["model"]) == (64, 1)
     assert saved_counts(run_dir / run_folder.FINAL_MODEL) == (64, 1)
