@@ -943,8 +943,14 @@ class _World:
             # An offset off the handle, or a turned tool, can put a finger into another part
             # of the instrument (a ring, a tine) or the tray's rim: the settling steps would
             # then shove it, or start the episode past the hard force limit.
-            while self._robot_touches_anything() and tcp[2] < self.workspace_upper[2]:
+            while self._robot_touches_anything():
+                if tcp[2] >= self.workspace_upper[2]:
+                    raise ValueError(
+                        f"reset option tool_start {np.round(tool_start, 4).tolist()}: the "
+                        "gripper touches the scene even raised to the workspace's top"
+                    )
                 tcp = tcp + [0.0, 0.0, TOOL_START_RAISE]
+                tcp[2] = min(tcp[2], self.workspace_upper[2])
                 self._place_tool(tcp, tool_yaw, opening, tool_start)
         mujoco.mj_forward(model, data)
         mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
