@@ -473,7 +473,7 @@ class PeriodicEvaluation(_Periodic):
         super().__init__(every)
         self.run_dir = run_dir
         self.task = task_for(config["env_id"])
-        # Runs from before eval_env_kwargs existed lack the key.
+        # None or absent: the training env's kwargs as they are.
         env_kwargs = deep_update(config["env_kwargs"], config.get("eval_env_kwargs") or {})
         self.env = make_env(config["env_id"], env_kwargs)
         first_seed = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
@@ -786,7 +786,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     # Checked again: a hand-edited config.yml is caught, and an older run folder's entry gets
     # the settings added since with their defaults.
     config["start_curriculum"] = check_start_curriculum(
-        config["env_id"], config.get("start_curriculum")
+        config["env_id"], config["start_curriculum"]
     )
     if steps >= config["n_timesteps"]:
         # Stopped during (or trained without) the final comparison its config asks for.

@@ -10,19 +10,6 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.envs.validation import (
-    as_action,
-    checked_reset_options,
-    finite_vector,
-    option_angle,
-    option_in,
-    option_xy,
-    require_choice,
-    require_int,
-    require_number,
-    require_range,
-    step_context,
-)
 from liuxing_envs.opengl import require_opengl
 from liuxing_envs.sim.arm import Arm
 from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
@@ -48,6 +35,19 @@ from liuxing_envs.sim.scene import (
     reset_to_home,
 )
 from liuxing_envs.sim.stability import diverged_since, divergence_count
+from liuxing_envs.validation import (
+    as_action,
+    checked_reset_options,
+    finite_vector,
+    option_angle,
+    option_in,
+    option_xy,
+    require_choice,
+    require_int,
+    require_number,
+    require_range,
+    step_context,
+)
 
 OBS_MODES = ("state", "depth", "rgbd")
 CONTROLLERS = ("ee_delta", "joint_delta")

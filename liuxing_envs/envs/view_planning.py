@@ -15,20 +15,6 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.envs.validation import (
-    as_action,
-    as_index,
-    checked_reset_options,
-    option_angle,
-    option_in,
-    option_xy,
-    require_choice,
-    require_int,
-    require_number,
-    require_numbers,
-    require_range,
-    step_context,
-)
 from liuxing_envs.opengl import require_opengl
 from liuxing_envs.perception.coverage import CoverageTracker
 from liuxing_envs.perception.free_space import FreeSpaceGrid
@@ -63,6 +49,20 @@ from liuxing_envs.sim.scene import (
     reset_to_home,
 )
 from liuxing_envs.sim.viewpoints import look_at, sphere_point
+from liuxing_envs.validation import (
+    as_action,
+    as_index,
+    checked_reset_options,
+    option_angle,
+    option_in,
+    option_xy,
+    require_choice,
+    require_int,
+    require_number,
+    require_numbers,
+    require_range,
+    step_context,
+)
 
 ACTION_MODES = ("continuous", "discrete")
 OBJECT_SET_NAMES = tuple(OBJECT_SETS)

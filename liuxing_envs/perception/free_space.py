@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from liuxing_envs.envs.validation import require_int
 from liuxing_envs.perception.fusion import MAX_GRID_RESOLUTION, checked_cube
 from liuxing_envs.perception.pointcloud import as_points
+from liuxing_envs.validation import require_int
 
 __all__ = ["DEFAULT_RAY_STRIDE", "FreeSpaceGrid"]
 

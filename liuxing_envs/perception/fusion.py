@@ -24,8 +24,8 @@ from typing import Literal
 
 import numpy as np
 
-from liuxing_envs.envs.validation import require_int
 from liuxing_envs.perception.pointcloud import as_points, box_mask_t
+from liuxing_envs.validation import require_int
 
 __all__ = [
     "DEFAULT_GRID_RESOLUTION",

@@ -39,8 +39,8 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from liuxing_envs.envs.validation import require_int, require_number
 from liuxing_envs.perception.pointcloud import as_points
+from liuxing_envs.validation import require_int, require_number
 
 __all__ = [
     "DEFAULT_CROP_MARGIN_VOXELS",

@@ -1,5 +1,6 @@
-"""Checks shared by the environments: keyword arguments (each failure names the argument,
-the value it got and what is allowed) and the context added to an error raised in ``step``."""
+"""Checks shared by the environments and the perception functions: keyword arguments (each
+failure names the argument, the value it got and what is allowed), actions and reset options,
+and the context added to an error raised in an env's ``step``."""
 
 from __future__ import annotations
 
