@@ -43,7 +43,7 @@ class Task:
     baseline_env_kwargs: Mapping = field(default_factory=dict)
     #: further ``info`` keys worth reporting, read at each episode's end
     extra_metrics: tuple[str, ...] = ()
-    #: a privileged upper bound (ground truth), reported for scale, never a competitor
+    #: a privileged reference (ground truth), reported for scale, never a competitor
     reference: str | None = None
     make_reference: Callable | None = None
 

@@ -15,7 +15,8 @@ from a view to an action (continuous or discrete) belongs to that environment.
 - :class:`RandomViews`: uniform samples of the action space (seeded).
 - :class:`GreedyOracle`: PRIVILEGED (uses ground truth): at each step it previews every
   candidate view of the environment's discrete set against the ground-truth coverage and
-  takes the one with the best reward. An upper bound, not a fair competitor.
+  takes the one with the best reward. A privileged reference, not a fair competitor, and no
+  upper bound: it looks one step ahead among fixed-radius candidates.
 """
 
 from __future__ import annotations

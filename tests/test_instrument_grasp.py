@@ -14,9 +14,11 @@ import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.grasp_baselines import Phase, PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
 from liuxing_envs.envs.instrument_grasp import (
     DEFAULT_FORCE_LIMIT,
+    GRASP_FORCE_THRESHOLD,
     READY_OPENING,
     READY_TCP,
     InstrumentGraspEnv,
+    jaws_across,
 )
 from liuxing_envs.sim.gripper import MAX_OPENING
 from tests.scripts import outcomes_without_opengl
@@ -619,6 +621,42 @@ def test_instrument_sleeps_at_rest_and_the_pads_wake_it():
     for _ in range(30):
         info = step_towards(grasp + [0.0, 0.0, 0.06], opening)
     assert info["grasped"] and info["lift_height"] > 0.04  # lifted by friction alone
+
+
+def test_grasped_counts_only_what_the_pads_press_on_the_instrument():
+    # The touch sensors feel every contact on a pad. Pads barely touching the handle while
+    # their fingertips press the tray floor read 8-15 N, but that is no grasp: reward_grasp
+    # would pay for pressing the tray.
+    env = InstrumentGraspEnv(instruments=["scalpel"])
+    env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.02]})
+    world = env.world
+    width, yaw = world.instrument.grasp_width, jaws_across(world.grasp_axis())
+    grasp = world.grasp_point()
+
+    def place(into_floor, squeeze):
+        tcp = np.array([grasp[0], grasp[1], world.tray.floor_z + 0.004 - into_floor])
+        world._place_tool(tcp, yaw, width + 0.0004, None)
+        world.data.qpos[world.gripper._qpos_idx] = (width - squeeze) / 2
+        mujoco.mj_forward(world.model, world.data)
+        return world.gripper.fingertip_forces(), world.gripper.pad_forces_on(world.body)
+
+    sensed, on_instrument = place(into_floor=0.0001, squeeze=4e-6)
+    assert (sensed > 5.0).all() and (on_instrument > 0.0).all()
+    assert (on_instrument < GRASP_FORCE_THRESHOLD).all() and not world.grasped()
+
+    # A real squeeze, stepped, the fingertips clear of the floor: all the pads feel is the
+    # instrument.
+    env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.002], "jaw_clearance": 0.004})
+    opening = world.gripper.opening()
+    while world.gripper.fingertip_forces().min() < 2.0:
+        opening -= 0.0004
+        action = np.zeros(5)
+        action[4] = opening / (MAX_OPENING / 2) - 1.0
+        assert not env.step(action)[2]
+    sensed = world.gripper.fingertip_forces()
+    on_instrument = world.gripper.pad_forces_on(world.body)
+    assert (on_instrument >= GRASP_FORCE_THRESHOLD).all() and world.grasped()
+    np.testing.assert_allclose(on_instrument, sensed, rtol=1e-3)
 
 
 def grip_then_lift(friction_range):

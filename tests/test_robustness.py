@@ -5,10 +5,12 @@ Property tests use hypothesis with a fixed seed (``derandomize``), so CI runs th
 examples every time.
 """
 
+import ast
 import inspect
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 
@@ -492,10 +494,29 @@ def test_a_foreign_pickle_is_not_taken_for_a_normaliser(tmp_path):
 def test_the_class_docstring_names_every_keyword_argument(env_class):
     """The docstring is the spec: a kwarg missing from it is one users cannot find (a review
     found ``table_crop_height`` undocumented)."""
-    doc = env_class.__doc__
+    doc, _ = _split_defaults(env_class.__doc__)  # the defaults list alone explains nothing
     names = [name for name in inspect.signature(env_class.__init__).parameters if name != "self"]
     missing = [n for n in names if f"``{n}``" not in doc and f"``{n}=" not in doc]
     assert not missing
+
+
+def _split_defaults(doc: str) -> tuple[str, dict[str, object]]:
+    """The docstring without its **Defaults** paragraph, and the defaults it lists."""
+    start = doc.index("**Defaults**")
+    end = doc.index("\n\n", start)
+    listed = " ".join(doc[start:end].split())  # literals may be wrapped across lines
+    defaults = {
+        name: ast.literal_eval(value) for name, value in re.findall(r"``(\w+)=(.+?)``", listed)
+    }
+    return doc[:start] + doc[end:], defaults
+
+
+@pytest.mark.parametrize("env_class", [ViewPlanningEnv, InstrumentGraspEnv])
+def test_the_class_docstring_lists_every_default_as_the_code_has_it(env_class):
+    _, listed = _split_defaults(env_class.__doc__)
+    parameters = inspect.signature(env_class.__init__).parameters
+    actual = {name: p.default for name, p in parameters.items() if name != "self"}
+    assert listed == actual
 
 
 @pytest.mark.parametrize(

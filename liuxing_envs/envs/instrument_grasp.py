@@ -209,8 +209,9 @@ class InstrumentGraspEnv(gym.Env):
     way until wrist 3 meets its limit would), leaves the arm's set-point unchanged.
     Control runs at ``control_hz`` over physics steps of ``timestep`` seconds. The arm's joint
     servos track their set-points with ``arm_stiffness`` times their full stiffness (1: a stiff
-    position-controlled arm; 0.1: a cobot's compliance mode, which bumps the instrument with a
-    tenth of the force and settles on it gently).
+    position-controlled arm; 0.1: a cobot's compliance mode, which bumps the instrument with
+    about a third of the force, 36 -> 13 N in a 1 cm-per-step push onto the retractor, and
+    settles on it gently; on the scissors, 82 -> 18 N still trips the protective stop).
 
     **Observation** ``Dict`` (float32 unless noted), for SB3's ``MultiInputPolicy``:
 
@@ -239,7 +240,8 @@ class InstrumentGraspEnv(gym.Env):
 
     - ``reward_reach`` = 1 - tanh(``reach_sharpness`` d), d = distance tool centre to grasp
       point (m), ``reach_sharpness`` 10/m by default;
-    - ``reward_grasp`` = 1 while both pads touch the instrument with >= 0.5 N each;
+    - ``reward_grasp`` = 1 while both pads press on the instrument with >= 0.5 N each
+      (contact normal forces with the instrument alone, not what the touch sensors add up);
     - ``reward_lift`` = 2 min(1, lift / ``target_height``) while grasped;
     - ``reward_hold`` = 1 while grasped at the target height;
     - ``reward_force`` = -``force_penalty`` sum_pads max(0, peak pad force - ``force_limit``);
@@ -283,7 +285,8 @@ class InstrumentGraspEnv(gym.Env):
     ``instrument``, ``position`` (grasp point x, y; without ``yaw``, at a random yaw at which
     the instrument fits the tray) and ``yaw``, and may start the arm
     elsewhere: ``tool_start`` = (x, y, z), the tool centre's offset from the grasp point (m;
-    z 0-0.3; clipped to the workspace, so offsets below ~3 mm all start at its floor), with
+    z 0-0.3; clipped to the workspace, so offsets below 1.5-3.5 mm, by instrument, all start
+    at its floor), with
     the jaws open 6 cm across the handle, turned by ``tool_yaw_error`` (rad) and opened to
     the handle's width plus ``jaw_clearance`` (m) if given (a training curriculum's starts;
     see ``agents/curriculum.py``). Where the gripper would then overlap the instrument or the
@@ -291,7 +294,7 @@ class InstrumentGraspEnv(gym.Env):
     is raised in 1 mm steps until it touches nothing, x, y and yaw kept: every episode starts
     with nothing touched, some such starts higher than asked. Registered with a
     TimeLimit of 200 steps (10 s; ``gym.make(..., max_episode_steps=N)`` changes it); the
-    environment itself never truncates.
+    environment itself truncates only on a simulator fault (above).
 
     **Arguments**: every keyword above, ``resolution`` (square image side, pixels),
     ``depth_backend`` (``"gl"``, ``"raycast"``, ``"embree"`` or ``"auto"``; the
@@ -300,6 +303,17 @@ class InstrumentGraspEnv(gym.Env):
     frame a control step, so ``metadata["render_fps"]`` is ``control_hz``). The colour image,
     ``depth_backend="gl"`` and ``render_mode`` need OpenGL: with ``MUJOCO_GL=disable`` they
     are refused when the env is made (``obs_mode="depth"`` is then ray-cast).
+
+    **Defaults** (the module's ``DEFAULT_*`` constants): ``obs_mode='state'``,
+    ``controller='ee_delta'``, ``gripper_control='opening'``, ``instrument_set='train'``,
+    ``instruments=None``, ``control_hz=20.0``, ``timestep=0.002``, ``force_limit=5.0``,
+    ``hard_limit_factor=3.0``, ``impact_limit=10.0``, ``target_height=0.1``,
+    ``hold_time=1.0``, ``reach_sharpness=10.0``, ``force_penalty=0.2``,
+    ``impact_penalty=0.05``, ``failure_penalty=5.0``, ``terminate_on_success=False``,
+    ``max_translation=0.02``, ``max_yaw=0.2``, ``max_joint_delta=0.05``,
+    ``max_gripper_delta=0.004``, ``max_grip_force=20.0``, ``arm_stiffness=1.0``,
+    ``mass_range=None``, ``friction_range=None``, ``resolution=64``,
+    ``depth_backend='auto'``, ``episode_steps=200``, ``render_mode=None``.
 
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
     ``max_gripper_delta``, then ``gripper_control="force"`` and ``max_grip_force``, then
@@ -1042,10 +1056,9 @@ class _World:
         return self.data.qvel[self._joint_dof : self._joint_dof + 3].copy()
 
     def grasped(self) -> bool:
-        """Both pads press on the instrument with at least GRASP_FORCE_THRESHOLD."""
-        touching = self.gripper.pads_touching(self.body)
-        forces = self.gripper.fingertip_forces()
-        return bool(np.all(touching) and np.all(forces >= GRASP_FORCE_THRESHOLD))
+        """Both pads press on the instrument with at least GRASP_FORCE_THRESHOLD each (what
+        they press on the tray does not count)."""
+        return bool(np.all(self.gripper.pad_forces_on(self.body) >= GRASP_FORCE_THRESHOLD))
 
     def asleep(self) -> bool:
         """Whether the instrument is asleep: at rest and touched by nothing awake."""

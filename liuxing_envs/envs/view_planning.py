@@ -83,10 +83,11 @@ DEFAULT_DISCRETE_AZIMUTHS_DEG = tuple(range(-180, 180, 45))
 DEFAULT_DISCRETE_ELEVATIONS_DEG = (25.0, 40.0, 55.0, 70.0)
 DEFAULT_DISCRETE_RADIUS = 0.38
 DEFAULT_COVERAGE_SAMPLES = 8192
-#: Coverage tolerance as a share of the bounding-box diagonal (3%: 4.5-7.5 mm). It must exceed
-#: the depth image's pixel footprint (about 5 mm at 64x64 and the working distance), or coverage
-#: measures the sampling density instead of what was seen: at 1% even a greedy oracle stays
-#: below 30%. Published dense-cloud set-ups use 0.7-1%; raise the resolution to match them.
+#: Coverage tolerance as a share of the bounding-box diagonal (3%: 4.5-7.5 mm at scale 1). It
+#: must exceed the depth image's pixel footprint (about 5 mm at 64x64 and the working
+#: distance), or coverage measures the sampling density instead of what was seen: at 1% even a
+#: greedy oracle stays below 30%. Published dense-cloud set-ups use 0.7-1%; raise the
+#: resolution to match them.
 DEFAULT_EPSILON_FRACTION = 0.03
 #: F-score threshold of the reconstruction, as a share of the bounding-box diagonal.
 DEFAULT_TAU_FRACTION = 0.01
@@ -202,7 +203,9 @@ class ViewPlanningEnv(gym.Env):
     found), ``refused`` (the view was not reached; only dynamic motion can be ``reachable``
     and refused), ``path_length``, ``is_success`` (coverage ≥ ``success_coverage``),
     ``viewpoint`` (azimuth, elevation in degrees, radius in m), ``object``, ``scale`` and
-    ``sim_unstable``.
+    ``sim_unstable``. ``reset()``'s ``info`` has the same keys but the three reward terms and
+    ``viewpoint``; its ``coverage`` is the start view's, which no reward pays (an episode's
+    coverage rewards sum to ``coverage_reward_scale`` × (final − start coverage)).
 
     **Simulator faults.** With ``motion="dynamic"``, physics that diverges (NaN, inf or huge
     accelerations, which MuJoCo answers by resetting its data) stops the motion; the episode
@@ -234,6 +237,19 @@ class ViewPlanningEnv(gym.Env):
     as no point could cover them), ``observe_free_space``, ``privileged``,
     ``render_mode`` ("rgb_array": the scene from the overview camera with the fused points
     and the camera's frustum).
+
+    **Defaults** (the module's ``DEFAULT_*`` constants): ``view_budget=4``,
+    ``action_mode='continuous'``, ``motion='kinematic'``, ``object_set='train'``,
+    ``objects=None``, ``scales=(0.8, 0.9, 1.0, 1.1, 1.2)``, ``object_region=((0.45, -0.08),
+    (0.55, 0.08))``, ``resolution=64``, ``depth_backend='auto'``, ``depth_noise=None``,
+    ``azimuth_range_deg=(-180.0, 180.0)``, ``elevation_range_deg=(20.0, 90.0)``,
+    ``radius_range=(0.3, 0.45)``, ``discrete_azimuths_deg=(-180, -135, -90, -45, 0, 45, 90,
+    135)``, ``discrete_elevations_deg=(25.0, 40.0, 55.0, 70.0)``, ``discrete_radius=0.38``,
+    ``coverage_samples=8192``, ``epsilon_fraction=0.03``, ``success_coverage=0.95``,
+    ``terminate_on_success=False``, ``coverage_reward_scale=10.0``, ``motion_cost=0.01``,
+    ``refusal_penalty=0.1``, ``map_voxel_size=0.003``, ``map_grid=16``, ``map_extent=0.32``,
+    ``depth_obs_range=1.0``, ``table_crop_height=0.0015``, ``observe_free_space=False``,
+    ``privileged=False``, ``render_mode=None``.
 
     **Version history.** v0: initial release. Fixed within v0 (2026-11-21): the placed
     object takes part in the arm's collision checks (before, paths could pass through it;

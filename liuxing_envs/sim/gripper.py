@@ -132,6 +132,23 @@ class Gripper:
             ]
         )
 
+    def pad_forces_on(self, body_id: int) -> np.ndarray:
+        """Normal force (N) of the left and right pad on ``body_id`` alone: unlike
+        :meth:`fingertip_forces`, a pad also pressing the tray or another body does not
+        count here."""
+        forces = np.zeros(2)
+        d, m = self.data, self.model
+        if d.ncon == 0:
+            return forces
+        geoms = d.contact.geom
+        on_body = m.geom_bodyid[geoms] == body_id
+        for side, pad in enumerate(self.pad_geoms):
+            pairs = (geoms[:, 0] == pad) & on_body[:, 1] | (geoms[:, 1] == pad) & on_body[:, 0]
+            for i in np.flatnonzero(pairs):
+                mujoco.mj_contactForce(m, d, i, self._wrench)
+                forces[side] += self._wrench[0]  # the normal, first axis of the contact frame
+        return forces
+
     def contact_force_on(self, body_id: int, *, exclude_geoms=()) -> np.ndarray:
         """Net contact force (N, world frame) that everything else exerts on ``body_id``,
         leaving out contacts with any geom in ``exclude_geoms`` (e.g. the pads)."""
