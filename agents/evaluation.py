@@ -182,15 +182,16 @@ def run_episodes(
     """One episode per seed; returns per episode its seed, return, length, the final
     ``info`` values of ``keys`` and what ``recorder`` (see :mod:`agents.recorders`) adds.
     ``on_episode`` is called after each episode (a progress bar's update). Sampled actions
-    (``deterministic=False``) draw from torch's generator seeded with the episode's seed, so
-    an episode does not depend on what ran before it in the process."""
+    (``deterministic=False``) draw from torch's generator seeded with the episode's seed, and a
+    scripted policy is reset with it, so an episode does not depend on what ran before it in
+    the process."""
     keys = tuple(keys)
     episodes = []
     for index, seed in enumerate(seeds):
         observation, info = env.reset(seed=int(seed))
         seed_sampling(int(seed), deterministic)
         if hasattr(policy, "reset"):
-            policy.reset()
+            policy.reset(seed=int(seed))
         if recorder is not None:
             recorder.begin(env, info)
         total, length, done = 0.0, 0, False

@@ -1,8 +1,9 @@
 """Scripted grasping baselines for InstrumentGrasp-v0.
 
 All expose SB3's ``predict(observation, state=None, episode_start=None, deterministic=True)
--> (action, state)`` for one (unbatched) observation, so evaluation code treats them like
-trained policies. They are built on the environment they act in (for its action scales,
+-> (action, state)`` for one env's observation, bare or as a batch of one (SB3's
+``evaluate_policy`` works on them; :mod:`agents.scripted_policy`), so evaluation code treats
+them like trained policies. They are built on the environment they act in (for its action scales,
 camera intrinsics and the arm's kinematic model: what a real robot knows from calibration).
 
 - :class:`ScriptedGrasp`: the seed pipeline. Needs ``obs_mode="rgbd"`` and the ``ee_delta``
@@ -21,6 +22,7 @@ camera intrinsics and the arm's kinematic model: what a real robot knows from ca
 
 from __future__ import annotations
 
+import copy
 import enum
 import math
 from dataclasses import dataclass
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from agents.scripted_policy import ScriptedPolicy
 from liuxing_envs.perception.pointcloud import camera_rays
 from liuxing_envs.sim.gripper import MAX_OPENING
 
@@ -174,7 +177,7 @@ class Phase(enum.IntEnum):
     LIFT = 5
 
 
-class ScriptedGrasp:
+class ScriptedGrasp(ScriptedPolicy):
     """Detect the red handle, approach aligned with it, close to a gentle force, lift, hold."""
 
     squeeze = False
@@ -190,11 +193,12 @@ class ScriptedGrasp:
             )
         if not 0.0 < grip_force:
             raise ValueError(f"grip_force must be > 0 N, got {grip_force}")
-        self.env = env
+        super().__init__(env)
         self.grip_force = float(grip_force)
         self.reset()
 
-    def reset(self) -> None:
+    def reset(self, seed: int | None = None) -> None:
+        self._acted = False
         self.phase = Phase.LOOK
         self.detection: HandleDetection | None = None
         self.target_yaw = 0.0
@@ -206,9 +210,12 @@ class ScriptedGrasp:
         self._search_index = 0
 
     # -------------------------------------------------------------------------------------
-    def predict(self, observation, state=None, episode_start=None, deterministic=True):
-        if episode_start is not None and np.any(episode_start):
+    def act(self, observation):
+        # A plain Gymnasium loop calls no reset() between episodes: the env's step counter
+        # says when one has begun.
+        if self._acted and self.env.episode_step == 0:
             self.reset()
+        self._acted = True
         proprio = np.asarray(observation["proprio"], dtype=np.float64)
         forces = np.asarray(observation["forces"], dtype=np.float64)
         tcp, yaw = proprio[12:15], math.atan2(proprio[16], proprio[15])
@@ -277,7 +284,7 @@ class ScriptedGrasp:
                 self._regulate_grip(forces, opening, HOLD_FORCE_FRACTION * self.grip_force)
 
         commanded_opening = proprio[18]
-        return self._action(tcp, yaw, target, target_yaw, speed, commanded_opening), state
+        return self._action(tcp, yaw, target, target_yaw, speed, commanded_opening)
 
     # -------------------------------------------------------------------------------------
     def _regulate_grip(self, forces: np.ndarray, opening: float, least_force: float) -> None:
@@ -363,15 +370,20 @@ class PrivilegedGrasp(ScriptedGrasp):
         )
 
 
-class RandomGrasp:
+class RandomGrasp(ScriptedPolicy):
     """Uniform random actions, seeded."""
 
     def __init__(self, env, seed: int = 0) -> None:
-        self.action_space = env.action_space
+        super().__init__(env)
+        self.action_space = copy.deepcopy(self.env.action_space)  # the env's own stays unseeded
         self.action_space.seed(seed)
 
-    def predict(self, observation, state=None, episode_start=None, deterministic=True):
-        return self.action_space.sample(), state
+    def reset(self, seed: int | None = None) -> None:
+        if seed is not None:
+            self.action_space.seed(seed)
+
+    def act(self, observation):
+        return self.action_space.sample()
 
 
 def _wrap(angle: float) -> float:

@@ -66,7 +66,7 @@ def record_videos(
                 observation, info = env.reset(seed=int(seed))
                 seed_sampling(int(seed), deterministic)  # so the video is the report's episode
                 if hasattr(policy, "reset"):
-                    policy.reset()
+                    policy.reset(seed=int(seed))
                 step, done = 0, False
                 while True:
                     frame = _annotate(

@@ -1,8 +1,9 @@
 """Scripted view-planning baselines for ViewPlanning-v0.
 
 All expose SB3's ``predict(observation, state=None, episode_start=None, deterministic=True)
--> (action, state)`` for one (unbatched) observation, so evaluation code treats them like
-trained policies. They are built on the environment they will act in, because the mapping
+-> (action, state)`` for one env's observation, bare or as a batch of one (SB3's
+``evaluate_policy`` works on them; :mod:`agents.scripted_policy`), so evaluation code treats
+them like trained policies. They are built on the environment they will act in, because the mapping
 from a view to an action (continuous or discrete) belongs to that environment.
 
 - :class:`FourViewpointBaseline`: the seed pipeline's fixed pattern, relative to the object's
@@ -21,9 +22,12 @@ from a view to an action (continuous or discrete) belongs to that environment.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
+
+from agents.scripted_policy import ScriptedPolicy
 
 #: 40 deg: at 30 deg the front view (between arm and object) is out of reach for 3 in 4
 #: placements; at 40 deg all four views are reachable across the placement region.
@@ -45,16 +49,16 @@ def views_used(observation: dict) -> int:
     return int(np.count_nonzero(history[:, -1]))
 
 
-class _ViewSequencePolicy:
+class _ViewSequencePolicy(ScriptedPolicy):
     """Plays a fixed sequence of (azimuth, elevation, radius) views, cycling if needed."""
 
     def __init__(self, env, views_rad) -> None:
-        self.env = env.unwrapped
+        super().__init__(env)
         self.views = tuple(views_rad)
 
-    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+    def act(self, observation):
         view = self.views[views_used(observation) % len(self.views)]
-        return action_for_view(self.env, *view), state
+        return action_for_view(self.env, *view)
 
 
 class FourViewpointBaseline(_ViewSequencePolicy):
@@ -77,30 +81,31 @@ class UniformViews(_ViewSequencePolicy):
         super().__init__(env, views)
 
 
-class RandomViews:
+class RandomViews(ScriptedPolicy):
     def __init__(self, env, seed: int | None = 0) -> None:
-        self.env = env.unwrapped
-        self.action_space = self.env.action_space
+        super().__init__(env)
+        self.action_space = copy.deepcopy(self.env.action_space)  # the env's own stays unseeded
         self.action_space.seed(seed)
 
-    def predict(self, observation, state=None, episode_start=None, deterministic=True):
-        return self.action_space.sample(), state
+    def reset(self, seed: int | None = None) -> None:
+        if seed is not None:
+            self.action_space.seed(seed)
+
+    def act(self, observation):
+        return self.action_space.sample()
 
 
-class GreedyOracle:
+class GreedyOracle(ScriptedPolicy):
     """PRIVILEGED: best candidate view by ground-truth reward preview at every step."""
 
-    def __init__(self, env) -> None:
-        self.env = env.unwrapped
-
-    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+    def act(self, observation):
         env = self.env
         best_index, best_reward = 0, -math.inf
         for index, view in enumerate(env.candidate_views):
             preview = env.preview_view(*view)
             if preview["reward"] > best_reward:
                 best_index, best_reward = index, preview["reward"]
-        return action_for_view(env, *env.candidate_views[best_index]), state
+        return action_for_view(env, *env.candidate_views[best_index])
 
 
 def action_for_view(env, azimuth: float, elevation: float, radius: float):

@@ -32,8 +32,7 @@ def run(baseline: str, episodes: int, instrument_set: str) -> dict:
     start = time.perf_counter()
     for seed in range(episodes):
         observation, info = env.reset(seed=seed)
-        if hasattr(policy, "reset"):
-            policy.reset()
+        policy.reset(seed=seed)
         done = False
         while not done:
             action, _ = policy.predict(observation, deterministic=True)

@@ -27,6 +27,7 @@ def run(baseline: str, episodes: int, object_set: str, budget: int) -> dict:
     start = time.perf_counter()
     for seed in range(episodes):
         obs, info = env.reset(seed=seed)
+        policy.reset(seed=seed)
         refusals, done = 0, False
         while not done:
             action, _ = policy.predict(obs, deterministic=True)

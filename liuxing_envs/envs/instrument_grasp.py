@@ -718,6 +718,11 @@ class InstrumentGraspEnv(gym.Env):
         qpos = world.arm.qpos if arm_qpos is None else np.asarray(arm_qpos, dtype=float)
         return world.wrist_camera_pose(qpos)
 
+    @property
+    def episode_step(self) -> int:
+        """Control steps taken since the last ``reset()``."""
+        return self._steps
+
     # ------------------------------------------------------------------ internals
     @property
     def dt(self) -> float:

@@ -1,0 +1,48 @@
+"""What every scripted baseline shares: SB3's ``predict`` on one env's observations.
+
+SB3's ``predict`` takes an observation with or without a leading batch dimension and answers
+in kind; its ``evaluate_policy`` always batches, even with one env. A scripted baseline acts
+in the one env it was built on (it reads that env's action scales, camera model or, when
+privileged, its simulator), so it takes one observation, bare or as a batch of one, and a
+batch of several is refused by name. ``episode_start`` (SB3's flag of a new episode) and
+:meth:`ScriptedPolicy.reset` clear what it remembers of the episode.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from stable_baselines3.common.utils import is_vectorized_observation
+
+
+class ScriptedPolicy:
+    """Base of the scripted baselines: subclasses implement :meth:`act` on one observation
+    and, when they remember anything within an episode, :meth:`reset`."""
+
+    def __init__(self, env) -> None:
+        self.env = env.unwrapped
+
+    def act(self, observation):
+        """The action for one (unbatched) observation."""
+        raise NotImplementedError
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the episode; ``seed`` reseeds a policy that samples (so that an episode
+        played by seed does not depend on the episodes before it)."""
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        batched = is_vectorized_observation(observation, self.env.observation_space)
+        if batched:
+            size = len(next(iter(observation.values())))
+            if size != 1:
+                raise ValueError(
+                    f"{type(self).__name__} acts in the one env it was built on, so it takes "
+                    f"one observation or a batch of one, not a batch of {size}: build one "
+                    "policy per env, or evaluate with n_envs=1"
+                )
+            observation = {key: value[0] for key, value in observation.items()}
+        if episode_start is not None and np.any(episode_start):
+            self.reset()
+        action = self.act(observation)
+        if batched:
+            action = np.asarray(action)[None]
+        return action, state
