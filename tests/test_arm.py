@@ -228,6 +228,71 @@ def test_move_rejects_bad_input(sim, qpos, mode, message):
         arm.move_to(qpos, mode)
 
 
+@pytest.mark.parametrize(
+    ("query", "message"),
+    [
+        (lambda arm: arm.in_collision(np.full(6, np.nan)), "qpos must be 6 finite"),
+        (lambda arm: arm.collisions(np.full(6, np.inf)), "qpos must be 6 finite"),
+        (lambda arm: arm.in_collision([0.3]), "qpos must be 6 finite"),
+        (lambda arm: arm.site_pose(qpos=np.full(6, np.nan)), "qpos must be 6 finite"),
+        (lambda arm: arm.check_path(HOME_QPOS, np.full(6, np.nan)), "q_to must be 6 finite"),
+        (lambda arm: arm.check_path(np.full(6, np.inf), HOME_QPOS), "q_from must be 6 finite"),
+        (
+            lambda arm: arm.solve_ik([0.5, 0.0, 0.3], np.eye(3), seed_qpos=np.full(6, np.nan)),
+            "seed_qpos must be 6 finite",
+        ),
+        (
+            lambda arm: arm.solve_ik([0.5, 0.0, 0.3], method="dls", max_iterations=0),
+            "max_iterations must be an integer in \\[1,",
+        ),
+        (lambda arm: arm.move_to(HOME_QPOS, "dynamic", max_joint_speed=0.0), "max_joint_speed"),
+        (lambda arm: arm.move_to(HOME_QPOS, "dynamic", max_joint_speed=-1.0), "max_joint_speed"),
+        (lambda arm: arm.move_to(HOME_QPOS, "dynamic", timeout=np.nan), "timeout"),
+    ],
+)
+def test_queries_and_moves_refuse_configurations_and_settings_that_mean_nothing(
+    sim, query, message
+):
+    # A NaN configuration collides with nothing, so its collision check passed; a negative
+    # or NaN speed skipped the ramp and stepped the servos straight to the goal.
+    _, data, arm = sim
+    before = data.qpos.copy()
+    with pytest.raises(ValueError, match=message):
+        query(arm)
+    np.testing.assert_array_equal(data.qpos, before)
+
+
+def test_ik_seeded_at_a_joint_limit_returns_that_configuration(sim):
+    # The closed form gives an angle at +-2 pi back a rounding error beyond the limit: it was
+    # dropped, and the arm sent to another branch up to 5.8 rad away.
+    _, _, arm = sim
+    rng = np.random.default_rng(4)
+    for trial in range(60):
+        q = rng.uniform(arm.lower, arm.upper)
+        joint = trial % 6
+        q[joint] = arm.upper[joint] if trial % 2 else arm.lower[joint]
+        if abs(np.sin(q[4])) < 1e-3:
+            continue  # the wrist singularity has no unique answer
+        position, rotation = arm.site_pose(qpos=q)
+        result = arm.solve_ik(position, rotation, seed_qpos=q, check_collisions=False)
+        assert result.success and arm.within_limits(result.qpos)
+        np.testing.assert_allclose(result.qpos, q, atol=1e-6)
+
+
+def test_closed_form_ik_solves_a_straight_elbow():
+    # cos(theta 3) of a straight elbow rounds to just past 1: the pose counted as unreachable.
+    rng = np.random.default_rng(2)
+    configurations = rng.uniform(-np.pi, np.pi, (200, 6))
+    configurations[:, 2] = 0.0
+    configurations[:, 4] = np.where(
+        np.abs(np.sin(configurations[:, 4])) < 0.05, 1.0, configurations[:, 4]
+    )
+    poses = np.stack([flange_pose_in_base(q) for q in configurations])
+    _, valid = ur_ik(poses)
+    assert valid.any(axis=1).all()
+    assert all(solutions_of_one(pose) for pose in poses)
+
+
 def test_planned_paths_are_followed_in_both_modes(sim):
     _, _, arm = sim
     eye, rotation = sphere_viewpoint(TABLE_POINT, np.deg2rad(150), np.deg2rad(40), 0.4)

@@ -38,6 +38,7 @@ from liuxing_envs.sim.scene import (
 )
 from liuxing_envs.sim.stability import diverged_since, divergence_count
 from liuxing_envs.sim.ur_ik import solutions_of_one, ur_ik
+from liuxing_envs.validation import require_int, require_number
 
 MOTION_MODES = ("kinematic", "dynamic")
 IK_METHODS = ("auto", "analytic", "dls")
@@ -74,6 +75,10 @@ DYNAMIC_CONTROL_PERIOD = 0.01  # s between set-point updates and contact checks
 DYNAMIC_SETTLE_TOLERANCE = 1e-3  # rad, every joint
 DYNAMIC_SETTLE_SPEED = 0.02  # rad/s, every joint
 DYNAMIC_TIMEOUT = 8.0  # s of simulated time
+#: How far past a joint limit a closed-form solution may land and be clipped back onto it: a
+#: configuration at a limit (a wrist at +-2 pi) comes back from the closed form a rounding
+#: error beyond it, and was dropped for a solution of another branch, up to 5.8 rad away.
+IK_LIMIT_SLACK = 1e-9  # rad
 #: Contacts shallower than this are touching, not colliding (MuJoCo reports dist <= 0).
 PENETRATION_TOLERANCE = 1e-4  # m
 
@@ -258,7 +263,7 @@ class Arm:
     def site_pose(self, site: str = WRIST_CAMERA_SITE, qpos: np.ndarray | None = None):
         """World position (3,) and rotation (3, 3) of a site, now or at configuration ``qpos``."""
         sid = self.site_id(site)
-        d = self.data if qpos is None else self._pose_scratch(qpos)
+        d = self.data if qpos is None else self._pose_scratch(_finite_qpos(qpos))
         return d.site_xpos[sid].copy(), d.site_xmat[sid].reshape(3, 3).copy()
 
     # ------------------------------------------------------------- collisions
@@ -299,7 +304,7 @@ class Arm:
         The rest of the world (objects, their poses) is the live data's, or the collision
         scene's (:meth:`use_collision_scene`).
         """
-        d = self._posed_for_collisions(self.qpos if qpos is None else qpos)
+        d = self._posed_for_collisions(self.qpos if qpos is None else _finite_qpos(qpos))
         mujoco.mj_collision(self._collisions.model, d)
         return self._arm_contacts(d, self._collisions)
 
@@ -308,10 +313,11 @@ class Arm:
 
     def check_path(self, q_from: np.ndarray, q_to: np.ndarray) -> PathCheck:
         """Collision-check the straight joint-space path from ``q_from`` to ``q_to``."""
+        q_from, q_to = _finite_qpos(q_from, "q_from"), _finite_qpos(q_to, "q_to")
         scene = self._collisions
         m, d = scene.model, scene.data
         waypoints = self._waypoints(q_from, q_to)
-        last_free = np.asarray(q_from, dtype=float).copy()
+        last_free = q_from.copy()
         self._posed_for_collisions(last_free)  # the world (objects) is copied once per path
         # The hot loop of planning (dozens of waypoints per path): locals, and the contact
         # filter only runs when MuJoCo found any contact at all.
@@ -391,12 +397,14 @@ class Arm:
         target_r = None if rotation is None else _as_rotation(rotation)
         if roll_free and target_r is None:
             raise ValueError("roll_free=True needs a rotation whose z axis to align")
-        if restarts < 0:
-            raise ValueError(f"restarts must be >= 0, got {restarts}")
+        require_int("restarts", restarts, 0, 10**6)
+        require_int("max_iterations", max_iterations, 1, 10**6)
+        require_number("position_tolerance", position_tolerance, 0.0, math.inf)
+        require_number("rotation_tolerance", rotation_tolerance, 0.0, math.inf)
         if method not in IK_METHODS:
             raise ValueError(f"unknown IK method {method!r}; allowed: {IK_METHODS}")
         sid = self.site_id(site)
-        reference = self.qpos if seed_qpos is None else np.asarray(seed_qpos, dtype=float)
+        reference = self.qpos if seed_qpos is None else _finite_qpos(seed_qpos, "seed_qpos")
         analytic_ok = target_r is not None and self._flange_from_site(sid) is not None
         if method == "analytic" and not analytic_ok:
             raise ValueError(
@@ -495,12 +503,13 @@ class Arm:
         """IK solutions (rows) shifted by whole turns towards ``reference`` where that stays
         within the joint limits, those within the limits, nearest (joint space) first."""
         if len(candidates):
+            lower, upper = self.lower - IK_LIMIT_SLACK, self.upper + IK_LIMIT_SLACK
             turns = np.round((reference - candidates) / (2 * np.pi))
             shifted = candidates + 2 * np.pi * turns
-            inside = (shifted >= self.lower) & (shifted <= self.upper)
+            inside = (shifted >= lower) & (shifted <= upper)
             candidates = np.where(inside, shifted, candidates)
-            within = (candidates >= self.lower) & (candidates <= self.upper)
-            candidates = candidates[within.all(axis=1)]
+            within = (candidates >= lower) & (candidates <= upper)
+            candidates = np.clip(candidates[within.all(axis=1)], self.lower, self.upper)
         # np.linalg.norm(axis=1) spelled out (the same sums): it is hot and costs ~10 us.
         offsets = candidates - reference
         return candidates[np.argsort(np.sqrt(np.add.reduce(offsets * offsets, axis=1)))]
@@ -516,11 +525,11 @@ class Arm:
             joints = []
             for angle, near, low, high in zip(angles, towards, lower, upper, strict=True):
                 shifted = angle + _TWO_PI * round((near - angle) / _TWO_PI)
-                if low <= shifted <= high:
+                if low - IK_LIMIT_SLACK <= shifted <= high + IK_LIMIT_SLACK:
                     angle = shifted
-                elif not low <= angle <= high:
+                elif not low - IK_LIMIT_SLACK <= angle <= high + IK_LIMIT_SLACK:
                     break
-                joints.append(angle)
+                joints.append(min(max(angle, low), high))
             else:
                 distance2 = sum((a - r) * (a - r) for a, r in zip(joints, towards, strict=True))
                 kept.append((distance2, joints))
@@ -605,6 +614,7 @@ class Arm:
         (see the module docstring)."""
         target = self._checked_qpos(qpos)
         self._check_mode(mode)
+        _check_dynamic_settings(max_joint_speed, timeout, settle_tolerance)
         if mode == "kinematic":
             return self._move_kinematic(target)
         return self._move_dynamic(target, max_joint_speed, timeout, settle_tolerance)
@@ -625,6 +635,7 @@ class Arm:
         to each segment) and stops at the first contact or missed waypoint.
         """
         self._check_mode(mode)
+        _check_dynamic_settings(max_joint_speed, timeout, settle_tolerance)
         now = self.qpos
         # np.allclose(path.start, now, atol=1e-9) spelled out: it is hot and costs 10 us.
         if not (np.abs(path.start - now) <= 1e-9 + 1e-5 * np.abs(now)).all():
@@ -702,9 +713,7 @@ class Arm:
         return MotionResult(False, self.qpos, path_length, False, (), t, "dynamic")
 
     def _checked_qpos(self, qpos) -> np.ndarray:
-        target = np.asarray(qpos, dtype=float)
-        if target.shape != (6,) or not np.isfinite(target).all():
-            raise ValueError(f"qpos must be 6 finite joint angles, got {qpos!r}")
+        target = _finite_qpos(qpos)
         if not self.within_limits(target):
             raise ValueError(
                 f"qpos {np.round(target, 4).tolist()} is outside the joint limits "
@@ -766,6 +775,26 @@ class Arm:
         count = max(1, int(np.ceil(sweep / self.path_check_step)))
         fractions = np.arange(1, count + 1)[:, None] / count
         return q_from + fractions * (q_to - q_from)
+
+
+def _check_dynamic_settings(max_joint_speed, timeout, settle_tolerance) -> None:
+    # A speed of 0 divided by zero; a negative or NaN one skipped the ramp and stepped the
+    # servos to the goal at once.
+    require_number("max_joint_speed", max_joint_speed, 1e-6, math.inf)
+    require_number("timeout", timeout, 1e-6, math.inf)
+    require_number("settle_tolerance", settle_tolerance, 1e-9, math.inf)
+
+
+def _finite_qpos(qpos, name: str = "qpos") -> np.ndarray:
+    """``qpos`` as 6 finite joint angles, or a ValueError naming it (a NaN configuration
+    is in collision with nothing, so a check of it would pass)."""
+    try:
+        angles = np.asarray(qpos, dtype=float)
+    except (TypeError, ValueError):
+        angles = None
+    if angles is None or angles.shape != (6,) or not np.isfinite(angles).all():
+        raise ValueError(f"{name} must be 6 finite joint angles, got {qpos!r}")
+    return angles
 
 
 def _rolls_about_z(angles: np.ndarray) -> np.ndarray:

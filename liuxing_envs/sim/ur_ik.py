@@ -29,6 +29,9 @@ _A2, _A3 = DH_A[1], DH_A[2]
 #: Solutions closer than this to a singularity (wrist or shoulder) are dropped, in radians
 #: of sin(theta5) / in metres of the reach test margins.
 _SINGULAR = 1e-6
+#: How far past +-1 a cosine (theta 3, theta 5) may round and still count as +-1: a straight
+#: elbow or wrist is reachable, not a miss.
+COS_SLACK = 1e-9
 _SIGNS = np.array([1.0, -1.0])
 _TWO_PI = 2 * np.pi
 _SHOULDER_HEIGHT = np.array([0.0, 0.0, _D1])  # origin of DH frame 1 in the base frame
@@ -81,7 +84,7 @@ def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # Theta 5 from the flange position seen along the rotated shoulder axis.
         cos5 = (p[:, 0, None] * s1 - p[:, 1, None] * c1 - _D4) / _D6
         base5 = np.arccos(np.clip(cos5, -1.0, 1.0))
-        base5[np.abs(cos5) > 1.0 + 1e-9] = np.nan
+        base5[np.abs(cos5) > 1.0 + COS_SLACK] = np.nan
         theta5 = base5[:, :, None] * signs  # (n, shoulder, wrist)
         s5, c5 = np.sin(theta5), np.cos(base5)[:, :, None]
         singular = np.abs(s5) < _SINGULAR
@@ -117,6 +120,8 @@ def ur_ik(flange_poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         )
         reach = np.einsum("...i,...i->...", in_base[..., 0, :], in_base[..., 0, :])
         cos3 = (reach - _A2**2 - _A3**2) / (2 * _A2 * _A3)
+        # A straight elbow rounds to just past +-1 (its branch would be dropped as NaN).
+        cos3 = np.where(np.abs(cos3) <= 1.0 + COS_SLACK, np.clip(cos3, -1.0, 1.0), cos3)
         theta3 = np.arccos(cos3)[..., None] * signs  # (n, shoulder, wrist, elbow)
         theta2 = (
             np.arcsin(_A3 * np.sin(theta3) / np.sqrt(reach)[..., None])
@@ -160,7 +165,7 @@ def solutions_of_one(pose: np.ndarray) -> list[tuple[int, list[float]]]:
         theta1 = phi1 + shoulder * phi2 + math.pi / 2
         s1, c1 = math.sin(theta1), math.cos(theta1)
         cos5 = (px * s1 - py * c1 - _D4F) / _D6F
-        if abs(cos5) > 1.0 + 1e-9:
+        if abs(cos5) > 1.0 + COS_SLACK:
             continue
         base5 = math.acos(min(max(cos5, -1.0), 1.0))
         c5 = math.cos(base5)
@@ -182,8 +187,9 @@ def solutions_of_one(pose: np.ndarray) -> list[tuple[int, list[float]]]:
             column_y = v0 * x2 + v1 * y2 + v2 * z2
             reach = b0 * b0 + b1 * b1 + b2 * b2
             cos3 = (reach - _A2F**2 - _A3F**2) / (2 * _A2F * _A3F)
-            if not -1.0 <= cos3 <= 1.0:
+            if not -1.0 - COS_SLACK <= cos3 <= 1.0 + COS_SLACK:
                 continue
+            cos3 = min(max(cos3, -1.0), 1.0)
             base3, shoulder_to_wrist = math.acos(cos3), math.sqrt(reach)
             offset = math.atan2(b2, -(c1 * b0 + s1 * b1))
             column = math.atan2(column_y, column_x)
