@@ -50,6 +50,33 @@ def test_registered_with_the_view_budget_as_episode_limit():
     env.close()
 
 
+def test_spending_the_budget_is_a_terminal_state_learners_do_not_bootstrap_from():
+    # It was a truncation: SB3 then added the critic's guess of a state with no views left
+    # (about 0.5, against 0.08 for a last view's reward) to every episode's last reward.
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    env = DummyVecEnv([lambda: gym.make(ENV_ID, view_budget=3, max_episode_steps=5, **FAST)])
+    env.seed(0)
+    env.reset()
+    for step in range(3):
+        _, _, dones, infos = env.step(np.zeros((1, 3), dtype=np.float32))
+        assert dones[0] == (step == 2)
+    assert not infos[0]["TimeLimit.truncated"]
+    # The registered TimeLimit at the budget flags truncated too, still not as a timeout.
+    plain = gym.make(ENV_ID, view_budget=2, max_episode_steps=2, **FAST)
+    plain.reset(seed=0)
+    plain.step(np.zeros(3, dtype=np.float32))
+    _, _, terminated, truncated, _ = plain.step(np.zeros(3, dtype=np.float32))
+    assert terminated and truncated
+    # A TimeLimit shorter than the budget cuts the episode: a truncation, views left.
+    short = DummyVecEnv([lambda: gym.make(ENV_ID, view_budget=4, max_episode_steps=2, **FAST)])
+    short.seed(0)
+    short.reset()
+    short.step(np.zeros((1, 3), dtype=np.float32))
+    _, _, dones, infos = short.step(np.zeros((1, 3), dtype=np.float32))
+    assert dones[0] and infos[0]["TimeLimit.truncated"]
+
+
 def test_passes_gymnasium_env_checker():
     env = ViewPlanningEnv(**FAST)
     check_env(env, skip_render_check=True)

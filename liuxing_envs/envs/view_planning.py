@@ -129,11 +129,14 @@ class ViewPlanningEnv(gym.Env):
     and the first depth image is taken from there (the start view looks straight down at the
     object region). The view sphere's centre is estimated from that first cloud (the centre
     of its bounding box at half its height), not from ground truth. Each step uses one view of
-    the budget; the episode is truncated after ``view_budget`` steps (through ``gym.make``,
-    whose registered TimeLimit is the default budget of 4, pass ``max_episode_steps`` equal to
-    a larger ``view_budget``: the TimeLimit would otherwise cut the episode at 4, as
-    Gymnasium's time limits are set apart from an env's kwargs). It terminates early
-    (success) only if ``terminate_on_success`` and coverage reaches ``success_coverage``.
+    the budget, and the episode terminates when the budget is spent: the remaining budget is
+    in the observation, so no value lies beyond the last view and learners must not bootstrap
+    from it. Through ``gym.make``, whose registered TimeLimit is the default budget of 4,
+    pass ``max_episode_steps`` equal to a larger ``view_budget``: the TimeLimit would
+    otherwise truncate the episode at 4, as Gymnasium's time limits are set apart from an
+    env's kwargs (at the budget's last step it also reports truncated, beside terminated). It
+    terminates early (success) only if ``terminate_on_success`` and coverage reaches
+    ``success_coverage``.
     ``reset(options=...)`` may fix any of ``object`` (one of :attr:`object_names`), ``scale``
     (one of ``scales``), ``position`` ((x, y) in m; the whole object must stay inside the
     workspace crop, as ``object_region`` must for every object: without ``object`` and
@@ -264,7 +267,11 @@ class ViewPlanningEnv(gym.Env):
     ``discrete_radius`` outside ``radius_range``; the env can be reset after ``close()``.
     Added within v0 (2026-11-23): ``depth_backend="embree"``. Added within v0 (2026-11-25):
     ``object_set="procedural"`` and ``procedural_<n>`` object names (the other sets are
-    unchanged).
+    unchanged). Fixed within v0 (2026-11-26; observations and rewards unchanged): spending
+    the budget terminates the episode (before, it was truncated, so PPO and SAC added the
+    extrapolated value of a state with no views left, about 0.5 on the shipped PPO's critic
+    against a mean last-view reward of 0.08, to every episode's last reward; the policies
+    measured before are unchanged, their training was not).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -596,10 +603,15 @@ class ViewPlanningEnv(gym.Env):
             unstable=unstable,
         )
         info["viewpoint"] = (math.degrees(azimuth), math.degrees(elevation), radius)
-        terminated = self.terminate_on_success and info["is_success"]
+        # The budget is part of the task (the observation counts it down), so spending it
+        # ends the episode as a terminal state: truncation would have learners bootstrap
+        # from views that can never follow.
+        terminated = self.views_used >= self.view_budget or (
+            self.terminate_on_success and info["is_success"]
+        )
         # A diverged simulation (dynamic motion only) was reset by MuJoCo: the episode's
         # state is gone, so it ends here; reset() starts a clean one.
-        truncated = (self.views_used >= self.view_budget or unstable) and not terminated
+        truncated = unstable and not terminated
         if terminated or truncated:
             self._episode_ready = False
         return self._observation(), reward, terminated, truncated, info
