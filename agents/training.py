@@ -473,9 +473,7 @@ class PeriodicEvaluation(_Periodic):
         super().__init__(every)
         self.run_dir = run_dir
         self.task = task_for(config["env_id"])
-        # None or absent: the training env's kwargs as they are.
-        env_kwargs = deep_update(config["env_kwargs"], config.get("eval_env_kwargs") or {})
-        self.env = make_env(config["env_id"], env_kwargs)
+        self.env = make_env(config["env_id"], periodic_eval_env_kwargs(config))
         first_seed = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
         self.seeds = range(first_seed, first_seed + config["eval_episodes"])
         self.best = self.best_so_far()
@@ -630,6 +628,25 @@ def _close_opened(venv, evaluation: PeriodicEvaluation | None) -> None:
         venv.close()
     if evaluation is not None:
         evaluation.env.close()
+
+
+def resumed_seed(seed: int, steps: int) -> int:
+    """The seed of a run resumed at ``steps``: drawn from both, so it lands on neither the
+    training envs' first seeds nor the periodic evaluation's (``seed + steps`` did, at 10,000
+    steps: ``seed + PERIODIC_EVAL_SEED_OFFSET``)."""
+    return int(np.random.SeedSequence([seed, steps]).generate_state(1)[0])
+
+
+def periodic_eval_env_kwargs(config: dict) -> dict:
+    """The training env's kwargs with ``eval_env_kwargs`` (None or absent: none) over them.
+    A split named there replaces an explicit list of objects (or instruments) the run trains
+    on, which the env would otherwise take over any split."""
+    changes = config.get("eval_env_kwargs") or {}
+    env_kwargs = deep_update(config["env_kwargs"], changes)
+    task = task_for(config["env_id"])
+    if task.split_kwarg in changes and task.explicit_scene_kwarg not in changes:
+        env_kwargs.pop(task.explicit_scene_kwarg, None)
+    return env_kwargs
 
 
 def _periodic_evaluation(config: dict, run_dir: Path, venv) -> PeriodicEvaluation | None:
@@ -848,7 +865,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
             evaluation.best = evaluation.best_so_far()
     run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
     # A new stream: the resumed run must not replay the episodes it has already seen.
-    model.set_random_seed((config["seed"] + steps) % (MAX_SEED + 1))
+    model.set_random_seed(resumed_seed(config["seed"], steps))
     return _learn(
         model,
         config,
@@ -1020,6 +1037,11 @@ def load_policy(run_dir: Path, config: dict | None = None, best: bool = True) ->
     model_path, normalizer_path = policy_files(run_dir, best)
     if not model_path.is_file():
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no {model_path.name}")
+    if config.get("normalize") and not normalizer_path.is_file():
+        raise run_folder.RunFolderError(
+            f"{str(run_dir)!r} trained with observation normalisation, but its "
+            f"{normalizer_path.name} is missing: its policy cannot be scored on raw observations"
+        )
     return SB3Policy.load(ALGO_CLASSES[config["algo"]], model_path, normalizer_path)
 
 

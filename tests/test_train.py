@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import shutil
 import signal
 import subprocess
 import sys
@@ -295,6 +296,44 @@ def test_the_periodic_evaluation_can_choose_the_best_model_on_other_objects(tmp_
     finally:
         training_env.close()
         evaluation.env.close()
+
+
+def test_the_periodic_evaluation_split_replaces_an_explicit_training_list():
+    # The env takes an explicit list over any split: best_model.zip was chosen on the
+    # training objects while the config said validation.
+    config = {
+        "env_id": "ViewPlanning-v0",
+        "env_kwargs": {"objects": ["box", "cylinder"], "view_budget": 3},
+        "eval_env_kwargs": {"object_set": "validation"},
+    }
+    assert training.periodic_eval_env_kwargs(config) == {
+        "view_budget": 3,
+        "object_set": "validation",
+    }
+    config["eval_env_kwargs"] = {"objects": ["mug"]}
+    assert training.periodic_eval_env_kwargs(config)["objects"] == ["mug"]
+    config["eval_env_kwargs"] = None
+    assert training.periodic_eval_env_kwargs(config) == config["env_kwargs"]
+
+
+def test_a_resumed_run_draws_no_periodic_evaluation_seed():
+    # seed + steps was the evaluation's first seed when resumed at a 10,000-step checkpoint.
+    offset = training.PERIODIC_EVAL_SEED_OFFSET
+    for seed in (0, 1, 7):
+        evaluated = range(seed + offset, seed + offset + 1000)
+        for steps in (offset, 2 * offset, 12_345):
+            resumed = training.resumed_seed(seed, steps)
+            assert resumed not in evaluated and resumed == training.resumed_seed(seed, steps)
+    assert training.resumed_seed(0, offset) != training.resumed_seed(0, 2 * offset)
+
+
+def test_a_normalised_run_without_its_normaliser_is_refused(tmp_path):
+    # load_policy (train.py's final comparison) took it on raw observations, silently.
+    run = tmp_path / "sac"
+    shutil.copytree(REPO / "policies" / "InstrumentGrasp-v0" / "sac", run)
+    (run / run_folder.BEST_NORMALIZER).unlink()
+    with pytest.raises(run_folder.RunFolderError, match="best_vecnormalize.pkl is missing"):
+        load_policy(run)
 
 
 # --- end to end ------------------------------------------------------------------------------
