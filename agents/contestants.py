@@ -320,8 +320,13 @@ def build_contestants(
     splits = dict(splits or {})
     contestants: list[Contestant] = []
     named_baselines: list[str] = []
+    seen: set[str] = set()
     for source in sources:
         looks_like_path = Path(source).suffix == ".zip" or "/" in source or Path(source).exists()
+        key = str(Path(source).resolve()) if looks_like_path else source
+        if key in seen:  # it would run twice, on the same episodes, under two labels
+            raise ContestantError(f"{source!r} is given more than once")
+        seen.add(key)
         if not looks_like_path:
             named_baselines.append(source)
             continue

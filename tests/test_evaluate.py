@@ -306,6 +306,14 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             ["--env", "InstrumentGrasp-v0", "--baselines", "squeeze,random,squeeze"],
             "--baselines names squeeze more than once",
         ),
+        (
+            ["--env", "InstrumentGrasp-v0", "squeeze", "squeeze"],
+            "'squeeze' is given more than once",
+        ),
+        (
+            ["policies/ViewPlanning-v0/ppo", "policies/ViewPlanning-v0/ppo/"],
+            "'policies/ViewPlanning-v0/ppo/' is given more than once",
+        ),
         (["runs/no/such/run"], "does not exist"),
         ([], "nothing to evaluate"),
         (
