@@ -14,6 +14,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
 from liuxing_envs.envs.view_planning import DEFAULT_VIEW_BUDGET, ViewPlanningEnv
+from liuxing_envs.perception.pointcloud import camera_rays
 from liuxing_envs.sim.viewpoints import look_at
 from tests.scripts import outcomes_without_opengl
 
@@ -75,6 +76,41 @@ def test_spending_the_budget_is_a_terminal_state_learners_do_not_bootstrap_from(
     short.step(np.zeros((1, 3), dtype=np.float32))
     _, _, dones, infos = short.step(np.zeros((1, 3), dtype=np.float32))
     assert dones[0] and infos[0]["TimeLimit.truncated"]
+
+
+def test_the_arm_in_view_is_filtered_out_of_the_map_not_out_of_the_image():
+    # Seed 0's view 3 (azimuth -45 deg, elevation 25 deg) shows the upper arm: it was fused
+    # as object, into the map, the coverage and the reconstruction.
+    import mujoco
+
+    filtered = ViewPlanningEnv(action_mode="discrete", depth_backend="raycast", **FAST)
+    raw = ViewPlanningEnv(
+        action_mode="discrete", depth_backend="raycast", filter_arm_points=False, **FAST
+    )
+    observations = []
+    for env in (filtered, raw):
+        env.reset(seed=0)
+        observations.append(env.step(3)[0])
+    np.testing.assert_array_equal(observations[0]["depth"], observations[1]["depth"])
+    on_arm = filtered.camera.pixels_on_geoms(
+        filtered._depth, filtered.data, filtered.arm.geom_ids, 0.003
+    )
+    assert on_arm.sum() > 300
+    # Which geom each pixel's ray meets first, by MuJoCo's own ray caster.
+    position, rotation = filtered.camera.pose(filtered.data)
+    rays = camera_rays(filtered.camera.intrinsics, "unit") @ rotation.T
+    first_hit = np.zeros(1, dtype=np.int32)
+    arm = set(filtered.arm.geom_ids.tolist())
+    hits_arm = np.zeros_like(on_arm)
+    for row, col in zip(*np.nonzero(filtered._depth > 0), strict=True):
+        groups = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)
+        mujoco.mj_ray(
+            filtered.model, filtered.data, position, rays[row, col], groups, 1, -1, first_hit
+        )
+        hits_arm[row, col] = int(first_hit[0]) in arm
+    assert (hits_arm <= on_arm).all()  # every return on the arm is found
+    assert (on_arm & ~hits_arm).sum() <= 0.05 * on_arm.sum()  # and little else, at its rim
+    assert len(raw.map.points()) - len(filtered.map.points()) >= 10  # cells of arm only
 
 
 def test_passes_gymnasium_env_checker():

@@ -89,6 +89,9 @@ DEFAULT_COVERAGE_SAMPLES = 8192
 #: greedy oracle stays below 30%. Published dense-cloud set-ups use 0.7-1%; raise the
 #: resolution to match them.
 DEFAULT_EPSILON_FRACTION = 0.03
+#: Returns this close to one of the arm's own geoms are the arm (with ``filter_arm_points``):
+#: exact returns lie on its surface, GL's tessellation puts them up to 0.34 mm off it.
+ARM_FILTER_MARGIN = 0.003  # m
 #: F-score threshold of the reconstruction, as a share of the bounding-box diagonal.
 DEFAULT_TAU_FRACTION = 0.01
 DEFAULT_SUCCESS_COVERAGE = 0.95
@@ -173,11 +176,14 @@ class ViewPlanningEnv(gym.Env):
 
     ``depth`` (1, H, W) uint8
         Latest depth image; 255 = ``depth_obs_range`` m (~3.9 mm per unit at 1 m),
-        0 = no return. Channel-first, so SB3 treats it as an image (NatureCNN).
+        0 = no return. Channel-first, so SB3 treats it as an image (NatureCNN). It shows
+        whatever the camera sees, the arm's own links included.
     ``map`` (G³,) float32
         1 where the fused map holds a point, in a cube of ``map_extent`` m around the
-        estimated centre; ``reshape(G, G, G)`` gives it indexed [x, y, z] (G = ``map_grid``).
-        Flat, so SB3 does not mistake it for an image.
+        estimated centre; with ``filter_arm_points`` (default) the returns on the arm's own
+        links (within ``ARM_FILTER_MARGIN``, 3 mm) are left out of the map, the coverage and
+        the reconstruction, as a robot's self-filter does; ``reshape(G, G, G)`` gives it
+        indexed [x, y, z] (G = ``map_grid``). Flat, so SB3 does not mistake it for an image.
     ``view_history`` (``view_budget`` * 5,) float32
         Per used view (as requested): cos azimuth, sin azimuth, elevation / 90°, radius
         normalised to [0, 1] over ``radius_range`` (widened to take in ``discrete_radius`` in
@@ -237,7 +243,8 @@ class ViewPlanningEnv(gym.Env):
     ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``,
     ``table_crop_height`` (m above the table below which points are cropped before fusion
     and coverage: the table itself; ground-truth samples more than ε below it do not count,
-    as no point could cover them), ``observe_free_space``, ``privileged``,
+    as no point could cover them), ``observe_free_space``, ``filter_arm_points``,
+    ``privileged``,
     ``render_mode`` ("rgb_array": the scene from the overview camera with the fused points
     and the camera's frustum).
 
@@ -252,7 +259,7 @@ class ViewPlanningEnv(gym.Env):
     ``terminate_on_success=False``, ``coverage_reward_scale=10.0``, ``motion_cost=0.01``,
     ``refusal_penalty=0.1``, ``map_voxel_size=0.003``, ``map_grid=16``, ``map_extent=0.32``,
     ``depth_obs_range=1.0``, ``table_crop_height=0.0015``, ``observe_free_space=False``,
-    ``privileged=False``, ``render_mode=None``.
+    ``filter_arm_points=True``, ``privileged=False``, ``render_mode=None``.
 
     **Version history.** v0: initial release. Fixed within v0 (2026-11-21): the placed
     object takes part in the arm's collision checks (before, paths could pass through it;
@@ -271,7 +278,11 @@ class ViewPlanningEnv(gym.Env):
     the budget terminates the episode (before, it was truncated, so PPO and SAC added the
     extrapolated value of a state with no views left, about 0.5 on the shipped PPO's critic
     against a mean last-view reward of 0.08, to every episode's last reward; the policies
-    measured before are unchanged, their training was not).
+    measured before are unchanged, their training was not). The fused map, coverage and
+    reconstruction leave out the returns on the arm's own links (``filter_arm_points``,
+    default on; before, a view showing the upper arm fused it as object: up to half the
+    points of a random episode's cloud, its Chamfer distance 34 mm against 3 mm without
+    them).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -308,6 +319,7 @@ class ViewPlanningEnv(gym.Env):
         depth_obs_range: float = DEFAULT_DEPTH_OBS_RANGE,
         table_crop_height: float = DEFAULT_TABLE_CROP_HEIGHT,
         observe_free_space: bool = False,
+        filter_arm_points: bool = True,
         privileged: bool = False,
         render_mode: str | None = None,
     ) -> None:
@@ -349,6 +361,7 @@ class ViewPlanningEnv(gym.Env):
             require_number(name, value, low, high)
         require_choice("terminate_on_success", terminate_on_success, (False, True))
         require_choice("observe_free_space", observe_free_space, (False, True))
+        require_choice("filter_arm_points", filter_arm_points, (False, True))
         require_choice("privileged", privileged, (False, True))
         scales = require_numbers("scales", scales, 0.05, 5.0)
         discrete_azimuths_deg = require_numbers(
@@ -385,6 +398,7 @@ class ViewPlanningEnv(gym.Env):
         self.map_extent = float(map_extent)
         self.depth_obs_range = float(depth_obs_range)
         self.privileged = bool(privileged)
+        self.filter_arm_points = bool(filter_arm_points)
         self.render_mode = render_mode
 
         meshes = _load_objects(object_set, objects)
@@ -726,7 +740,7 @@ class ViewPlanningEnv(gym.Env):
         # Its own generator, so previews leave the episode's noise stream untouched.
         rng = np.random.default_rng(0) if self._noise_enabled else None
         depth = self._render_depth(rng)
-        points = crop_points(self.camera.points_world(depth, self.data), *self._crop)
+        points = crop_points(self._world_points(depth), *self._crop)
         mujoco.mj_copyData(self.data, self.model, self._preview_saved)
         gain = self.coverage.preview(self.placed.to_object(points))
         reward = self.coverage_reward_scale * gain - self.motion_cost * plan.length
@@ -788,11 +802,23 @@ class ViewPlanningEnv(gym.Env):
         """Render depth at the current pose, fuse it, and return the new cropped points."""
         rng = self.np_random if self._noise_enabled else None
         self._depth = self._render_depth(rng)
-        self._hits = self.camera.points_world(self._depth, self.data)
+        self._hits = self._world_points(self._depth)
         points = crop_points(self._hits, *self._crop)
         self.map.fuse(points)
         self._camera_locations.append(self.camera.pose(self.data)[0])
         return points
+
+    def _world_points(self, depth: np.ndarray) -> np.ndarray:
+        """World points of the image's returns at the live state, less those on the arm's
+        own links with ``filter_arm_points`` (the depth observation keeps them: the camera
+        does see the arm)."""
+        if self.filter_arm_points:
+            on_arm = self.camera.pixels_on_geoms(
+                depth, self.data, self.arm.geom_ids, ARM_FILTER_MARGIN
+            )
+            if on_arm.any():
+                depth = np.where(on_arm, 0.0, depth).astype(depth.dtype)
+        return self.camera.points_world(depth, self.data)
 
     def _carve_free_space(self) -> None:
         """Mark the cells the latest image's rays crossed (needs the episode's centre)."""

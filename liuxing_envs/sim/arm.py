@@ -241,6 +241,11 @@ class Arm:
         return self._qpos_idx.copy()
 
     @property
+    def geom_ids(self) -> np.ndarray:
+        """Ids of the arm's geoms (its links, down to the camera mount) in the live model."""
+        return np.flatnonzero(self._is_arm_geom)
+
+    @property
     def qpos(self) -> np.ndarray:
         """Current joint angles of the arm (rad), a copy."""
         return self.data.qpos[self._qpos_idx].copy()

@@ -397,7 +397,8 @@ class _ViewFrustum:
         planes = np.array(
             [[1, 0, tan_x], [-1, 0, tan_x], [0, 1, tan_y], [0, -1, tan_y], [0, 0, 1]], float
         )
-        self._planes = planes / np.linalg.norm(planes, axis=1, keepdims=True)
+        #: Unit outward normals in the camera frame of the planes bounding every pixel ray.
+        self.planes = planes / np.linalg.norm(planes, axis=1, keepdims=True)
 
     def may_reach(
         self,
@@ -413,7 +414,7 @@ class _ViewFrustum:
         ids = np.asarray(geom_ids, dtype=np.intp)
         offset = data.geom_xpos[ids] - position
         box = model.geom_aabb[ids]
-        normals = self._planes @ rotation.T  # (5, 3) outward normals in the world
+        normals = self.planes @ rotation.T  # (5, 3) outward normals in the world
         # Nearest point of each box to each plane (signed, > 0 outside): its centre's offset
         # minus the half-sizes weighted by how far each box axis leans along the normal.
         normals_in_geom = normals @ data.geom_xmat[ids].reshape(-1, 3, 3)  # (geom, plane, xyz)
@@ -940,6 +941,33 @@ class _EmbreeBackend(_RaycastBackend):
         return self._meshes[key]
 
 
+def _within_geom(
+    local: np.ndarray, geom_type: int, size: np.ndarray, aabb: np.ndarray, margin: float
+) -> np.ndarray:
+    """Per point (in the geom's frame): whether it lies within ``margin`` of the geom."""
+    if geom_type == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return np.einsum("ni,ni->n", local, local) <= (size[0] + margin) ** 2
+    if geom_type == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        along = np.clip(local[:, 2], -size[1], size[1])
+        radial2 = local[:, 0] ** 2 + local[:, 1] ** 2 + (local[:, 2] - along) ** 2
+        return radial2 <= (size[0] + margin) ** 2
+    if geom_type == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        outside_radius = np.maximum(np.hypot(local[:, 0], local[:, 1]) - size[0], 0.0)
+        outside_ends = np.maximum(np.abs(local[:, 2]) - size[1], 0.0)
+        return outside_radius**2 + outside_ends**2 <= margin**2
+    half = size if geom_type == mujoco.mjtGeom.mjGEOM_BOX else aabb[3:]
+    centre = np.zeros(3) if geom_type == mujoco.mjtGeom.mjGEOM_BOX else aabb[:3]
+    outside = np.maximum(np.abs(local - centre) - half, 0.0)
+    return np.einsum("ni,ni->n", outside, outside) <= margin**2
+
+
+def _scatter(mask: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """An array shaped like ``mask``, ``values`` where it is True, False elsewhere."""
+    out = np.zeros(mask.shape, dtype=bool)
+    out[mask] = values
+    return out
+
+
 # --- the camera ------------------------------------------------------------------------------
 
 
@@ -1013,6 +1041,7 @@ class DepthCamera:
 
         model.cam_fovy[camera_id] = intrinsics.fovy_deg
         self._frustum = _ViewFrustum(intrinsics)
+        self._pixel_grid = _PixelGrid(intrinsics)
         # A non-zero sensor size makes MuJoCo project with cam_intrinsic instead of fovy.
         model.cam_sensorsize[camera_id] = 0.0
 
@@ -1107,6 +1136,57 @@ class DepthCamera:
         """
         position, rotation = self.pose(data)
         return self._frustum.may_reach(self.model, data, geom_ids, position, rotation)
+
+    def pixels_on_geoms(
+        self, depth: np.ndarray, data: mujoco.MjData, geom_ids: np.ndarray, margin: float
+    ) -> np.ndarray:
+        """``(height, width)`` bool: the pixels of ``depth`` (rendered at ``data``'s state)
+        whose return lies on one of ``geom_ids`` or within ``margin`` metres of it: a robot's
+        self-filter, which finds its own links in its camera's image. Spheres, capsules,
+        cylinders and boxes are tested exactly, other geoms by their bounding box. Only the
+        geoms whose bounding sphere meets the field of view, and only the pixels their box
+        projects to, are tested."""
+        depth = np.asarray(depth)
+        if depth.shape != (self.intrinsics.height, self.intrinsics.width):
+            raise ValueError(
+                f"depth has shape {depth.shape}, not this camera's "
+                f"{(self.intrinsics.height, self.intrinsics.width)}"
+            )
+        on_geoms = np.zeros(depth.shape, dtype=bool)
+        ids = np.asarray(geom_ids, dtype=np.intp)
+        position, rotation = self.pose(data)
+        # Bounding spheres first (cheap): most views show none of the robot.
+        centres = (data.geom_xpos[ids] - position) @ rotation
+        radii = self.model.geom_rbound[ids] + margin
+        ahead = -centres[:, 2]
+        ids = ids[
+            (ahead + radii >= self.intrinsics.min_depth)
+            & (ahead - radii <= self.intrinsics.max_depth)
+            & (centres @ self._frustum.planes.T <= radii[:, None]).all(axis=1)
+        ]
+        grid = self._pixel_grid
+        rays = camera_rays(self.intrinsics, "z")
+        for geom in ids.tolist():
+            frame = data.geom_xmat[geom].reshape(3, 3)
+            centre = data.geom_xpos[geom]
+            box = self.model.geom_aabb[geom]
+            corners = (box[:3] + _BOX_CORNERS * (box[3:] + margin)) @ frame.T + (centre - position)
+            corners = corners @ rotation  # in the camera frame, which looks along -z
+            nearest, farthest = -corners[:, 2].max(), -corners[:, 2].min()
+            if farthest < self.intrinsics.min_depth:
+                continue  # behind or at the optical centre (the wrist's own links)
+            window = grid.window(corners) or (slice(None), slice(None))
+            window_depth = depth[window]
+            valid = (window_depth >= nearest) & (window_depth <= farthest) & (window_depth > 0.0)
+            if not valid.any():
+                continue
+            points = (rays[window][valid] * window_depth[valid, None]) @ rotation.T + position
+            local = (points - centre) @ frame  # in the geom's frame
+            hits = _within_geom(
+                local, int(self.model.geom_type[geom]), self.model.geom_size[geom], box, margin
+            )
+            on_geoms[window] |= _scatter(valid, hits)
+        return on_geoms
 
     def pose(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Camera position ``(3,)`` and rotation ``(3, 3)`` (columns = camera axes) in the world.
