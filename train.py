@@ -4,8 +4,9 @@
     python train.py --env InstrumentGrasp-v0 --algo sac --seed 1 -n 300000
     python train.py --algo ppo --hyperparams learning_rate=1e-4 policy_kwargs.net_arch=[64,64]
     python train.py --env-kwargs view_budget=6 --eval-freq 2000
-    python train.py --resume runs/ViewPlanning-v0/ppo_seed0_20261121-101500 [-n 50000]
-    python train.py --env InstrumentGrasp-v0 --algo sac --init-from policies/InstrumentGrasp-v0/sac
+    python train.py --resume runs/ViewPlanning-v0/ppo_seed0_20261121-101500 [-n 120000]
+    python train.py --env InstrumentGrasp-v0 --algo sac \
+        --init-from policies/InstrumentGrasp-v0/sac --hyperparams demonstrations=null
 
 Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id) or --config; each
 run writes a folder (see agents/run_folder.py) with its resolved config, models, checkpoints,
