@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agents.scripted_policy import ScriptedPolicy
+from agents.scripted_policy import ScriptedPolicy, sampling_seed
 from liuxing_envs.perception.pointcloud import camera_rays
 from liuxing_envs.sim.gripper import MAX_OPENING
 
@@ -198,7 +198,7 @@ class ScriptedGrasp(ScriptedPolicy):
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:
-        self._acted = False
+        self._episode_seen: int | None = None
         self.phase = Phase.LOOK
         self.detection: HandleDetection | None = None
         self.target_yaw = 0.0
@@ -211,11 +211,12 @@ class ScriptedGrasp(ScriptedPolicy):
 
     # -------------------------------------------------------------------------------------
     def act(self, observation):
-        # A plain Gymnasium loop calls no reset() between episodes: the env's step counter
-        # says when one has begun.
-        if self._acted and self.env.episode_step == 0:
+        # A plain Gymnasium loop calls no reset() between episodes: the env counts them. (A
+        # policy acting in another env than its own sees no count change: reset() it.)
+        started = self.env.episodes_started
+        if self._episode_seen is not None and started != self._episode_seen:
             self.reset()
-        self._acted = True
+        self._episode_seen = started
         proprio = np.asarray(observation["proprio"], dtype=np.float64)
         forces = np.asarray(observation["forces"], dtype=np.float64)
         tcp, yaw = proprio[12:15], math.atan2(proprio[16], proprio[15])
@@ -376,11 +377,11 @@ class RandomGrasp(ScriptedPolicy):
     def __init__(self, env, seed: int = 0) -> None:
         super().__init__(env)
         self.action_space = copy.deepcopy(self.env.action_space)  # the env's own stays unseeded
-        self.action_space.seed(seed)
+        self.action_space.seed(sampling_seed(seed))
 
     def reset(self, seed: int | None = None) -> None:
         if seed is not None:
-            self.action_space.seed(seed)
+            self.action_space.seed(sampling_seed(seed))
 
     def act(self, observation):
         return self.action_space.sample()

@@ -14,6 +14,19 @@ import numpy as np
 from stable_baselines3.common.utils import is_vectorized_observation
 
 
+def sampling_seed(seed: int | None) -> int | None:
+    """The seed of a policy's own sampling for an episode seed: derived from it, since an
+    action space seeded with the env's seed would draw the env's own reset stream (so a
+    random first view would follow the object drawn)."""
+    if seed is None:
+        return None
+    return int(np.random.SeedSequence([seed, _SAMPLING_STREAM]).generate_state(1)[0])
+
+
+#: Tells the policies' sampling streams from the env's, which Gymnasium seeds alike.
+_SAMPLING_STREAM = 0x52414E44
+
+
 class ScriptedPolicy:
     """Base of the scripted baselines: subclasses implement :meth:`act` on one observation
     and, when they remember anything within an episode, :meth:`reset`."""

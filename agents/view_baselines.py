@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from agents.scripted_policy import ScriptedPolicy
+from agents.scripted_policy import ScriptedPolicy, sampling_seed
 
 #: 40 deg: at 30 deg the front view (between arm and object) is out of reach for 3 in 4
 #: placements; at 40 deg all four views are reachable across the placement region.
@@ -85,11 +85,11 @@ class RandomViews(ScriptedPolicy):
     def __init__(self, env, seed: int | None = 0) -> None:
         super().__init__(env)
         self.action_space = copy.deepcopy(self.env.action_space)  # the env's own stays unseeded
-        self.action_space.seed(seed)
+        self.action_space.seed(sampling_seed(seed))
 
     def reset(self, seed: int | None = None) -> None:
         if seed is not None:
-            self.action_space.seed(seed)
+            self.action_space.seed(sampling_seed(seed))
 
     def act(self, observation):
         return self.action_space.sample()

@@ -11,7 +11,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.evaluation import run_episodes
-from agents.grasp_baselines import PrivilegedGrasp, RandomGrasp
+from agents.grasp_baselines import PrivilegedGrasp, RandomGrasp, ScriptedGrasp
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews
 
 
@@ -81,3 +81,34 @@ def test_random_baselines_play_an_episode_by_its_seed_alone(env_id, make):
     assert alone["return"] == after_others["return"]
     # The env's own action space is neither reseeded nor drawn from by the policy.
     np.testing.assert_array_equal(env.action_space.sample(), untouched.sample())
+
+
+@pytest.mark.parametrize(
+    ("env_id", "make"), [("ViewPlanning-v0", RandomViews), ("InstrumentGrasp-v0", RandomGrasp)]
+)
+def test_random_baselines_do_not_replay_the_env_s_own_draws(env_id, make):
+    # Gymnasium seeds an env and a space alike: a policy seeded with the episode's seed drew
+    # the env's reset stream, so its first random view followed the object drawn.
+    env = gym.make(env_id)
+    policy = make(env)
+    for seed in (0, 7):
+        observation, _ = env.reset(seed=seed)
+        policy.reset(seed=seed)
+        action, _ = policy.predict(observation)
+        replayed = copy.deepcopy(env.action_space)
+        replayed.seed(seed)
+        assert not np.array_equal(np.asarray(action), replayed.sample())
+
+
+def test_a_scripted_grasp_built_on_one_env_acts_in_another_when_reset():
+    # It used to detect a new episode from its own env's step counter, which an env it is not
+    # stepped in never moves: it restarted before every action and never grasped.
+    kwargs = {"obs_mode": "rgbd", "terminate_on_success": True}
+    built_on, played_in = (
+        gym.make("InstrumentGrasp-v0", **kwargs),
+        gym.make("InstrumentGrasp-v0", **kwargs),
+    )
+    policy = ScriptedGrasp(built_on)
+    policy.reset()
+    _, info = play(played_in, policy, seed=1)
+    assert info["is_success"]

@@ -490,6 +490,7 @@ class InstrumentGraspEnv(gym.Env):
             obs["rgb"] = spaces.Box(0, 255, (3, resolution, resolution), dtype=np.uint8)
         self.observation_space = spaces.Dict(obs)
         self._reset_seed: int | None = None
+        self._episodes_started = 0
         self._steps = 0
         self._episode_ready = False
         self._renderer: mujoco.Renderer | None = None
@@ -553,6 +554,7 @@ class InstrumentGraspEnv(gym.Env):
         )
 
         self._steps = 0
+        self._episodes_started += 1
         self._hold_count = 0
         self._held = False
         self._peak_force = 0.0
@@ -719,9 +721,9 @@ class InstrumentGraspEnv(gym.Env):
         return world.wrist_camera_pose(qpos)
 
     @property
-    def episode_step(self) -> int:
-        """Control steps taken since the last ``reset()``."""
-        return self._steps
+    def episodes_started(self) -> int:
+        """How many episodes ``reset()`` has begun."""
+        return self._episodes_started
 
     # ------------------------------------------------------------------ internals
     @property

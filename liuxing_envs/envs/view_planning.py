@@ -218,7 +218,8 @@ class ViewPlanningEnv(gym.Env):
 
     **Simulator faults.** With ``motion="dynamic"``, physics that diverges (NaN, inf or huge
     accelerations, which MuJoCo answers by resetting its data) stops the motion; the episode
-    is truncated with ``info["sim_unstable"] = True`` and the next ``reset()`` starts clean.
+    is truncated (terminated instead, when that view spent the budget) with
+    ``info["sim_unstable"] = True`` and the next ``reset()`` starts clean.
 
     **Coverage** (the NBV metric of PC-NBV, SCONE, RL-NBV): ``coverage_samples`` points
     sampled uniformly on the object's surface, restricted to those some view of the upper
