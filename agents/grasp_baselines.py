@@ -22,7 +22,6 @@ camera intrinsics and the arm's kinematic model: what a real robot knows from ca
 
 from __future__ import annotations
 
-import copy
 import enum
 import math
 from dataclasses import dataclass
@@ -30,7 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from agents.scripted_policy import ScriptedPolicy, sampling_seed
+from agents.scripted_policy import RandomActions, ScriptedPolicy
 from liuxing_envs.perception.pointcloud import camera_rays
 from liuxing_envs.sim.gripper import MAX_OPENING
 
@@ -371,20 +370,8 @@ class PrivilegedGrasp(ScriptedGrasp):
         )
 
 
-class RandomGrasp(ScriptedPolicy):
+class RandomGrasp(RandomActions):
     """Uniform random actions, seeded."""
-
-    def __init__(self, env, seed: int = 0) -> None:
-        super().__init__(env)
-        self.action_space = copy.deepcopy(self.env.action_space)  # the env's own stays unseeded
-        self.action_space.seed(sampling_seed(seed))
-
-    def reset(self, seed: int | None = None) -> None:
-        if seed is not None:
-            self.action_space.seed(sampling_seed(seed))
-
-    def act(self, observation):
-        return self.action_space.sample()
 
 
 def _wrap(angle: float) -> float:

@@ -5,10 +5,13 @@ in kind; its ``evaluate_policy`` always batches, even with one env. A scripted b
 in the one env it was built on (it reads that env's action scales, camera model or, when
 privileged, its simulator), so it takes one observation, bare or as a batch of one, and a
 batch of several is refused by name. ``episode_start`` (SB3's flag of a new episode) and
-:meth:`ScriptedPolicy.reset` clear what it remembers of the episode.
+:meth:`ScriptedPolicy.reset` clear what it remembers of the episode. :class:`RandomActions`
+is the random baseline of both envs.
 """
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 from stable_baselines3.common.utils import is_vectorized_observation
@@ -59,3 +62,20 @@ class ScriptedPolicy:
         if batched:
             action = np.asarray(action)[None]
         return action, state
+
+
+class RandomActions(ScriptedPolicy):
+    """Uniform samples of the env's action space from a stream of its own: seeded with
+    ``seed``, and again with each episode's by :meth:`reset`."""
+
+    def __init__(self, env, seed: int | None = 0) -> None:
+        super().__init__(env)
+        self.action_space = copy.deepcopy(self.env.action_space)  # the env's own stays unseeded
+        self.action_space.seed(sampling_seed(seed))
+
+    def reset(self, seed: int | None = None) -> None:
+        if seed is not None:
+            self.action_space.seed(sampling_seed(seed))
+
+    def act(self, observation):
+        return self.action_space.sample()

@@ -22,12 +22,11 @@ from a view to an action (continuous or discrete) belongs to that environment.
 
 from __future__ import annotations
 
-import copy
 import math
 
 import numpy as np
 
-from agents.scripted_policy import ScriptedPolicy, sampling_seed
+from agents.scripted_policy import RandomActions, ScriptedPolicy
 
 #: 40 deg: at 30 deg the front view (between arm and object) is out of reach for 3 in 4
 #: placements; at 40 deg all four views are reachable across the placement region.
@@ -81,18 +80,8 @@ class UniformViews(_ViewSequencePolicy):
         super().__init__(env, views)
 
 
-class RandomViews(ScriptedPolicy):
-    def __init__(self, env, seed: int | None = 0) -> None:
-        super().__init__(env)
-        self.action_space = copy.deepcopy(self.env.action_space)  # the env's own stays unseeded
-        self.action_space.seed(sampling_seed(seed))
-
-    def reset(self, seed: int | None = None) -> None:
-        if seed is not None:
-            self.action_space.seed(sampling_seed(seed))
-
-    def act(self, observation):
-        return self.action_space.sample()
+class RandomViews(RandomActions):
+    """Uniform samples of the action space, seeded."""
 
 
 class GreedyOracle(ScriptedPolicy):
