@@ -252,10 +252,12 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     )
     assert improvement["value"] == pytest.approx(expected)
 
-    # The same run twice is not two training seeds.
+    # A copy of a run is not a second training seed (the same path twice is refused).
+    twin = tmp_path / "twin"
+    shutil.copytree(runs[0], twin)
     again = tmp_path / "again"
     run_script(
-        *("evaluate.py", runs[0], runs[0], "--baselines", "none", "--episodes", "2"),
+        *("evaluate.py", runs[0], str(twin), "--baselines", "none", "--episodes", "2"),
         *("--reconstruct-episodes", "0", "--out", str(again)),
     )
     section = read_report(again)["environments"]["ViewPlanning-v0"]
