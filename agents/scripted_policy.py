@@ -11,6 +11,7 @@ is the random baseline of both envs.
 
 from __future__ import annotations
 
+import abc
 import copy
 
 import numpy as np
@@ -30,20 +31,21 @@ def sampling_seed(seed: int | None) -> int | None:
 _SAMPLING_STREAM = 0x52414E44
 
 
-class ScriptedPolicy:
+class ScriptedPolicy(abc.ABC):
     """Base of the scripted baselines: subclasses implement :meth:`act` on one observation
     and, when they remember anything within an episode, :meth:`reset`."""
 
     def __init__(self, env) -> None:
         self.env = env.unwrapped
 
+    @abc.abstractmethod
     def act(self, observation):
         """The action for one (unbatched) observation."""
-        raise NotImplementedError
 
     def reset(self, seed: int | None = None) -> None:
         """Forget the episode; ``seed`` reseeds a policy that samples (so that an episode
         played by seed does not depend on the episodes before it)."""
+        return None  # a policy that remembers nothing and samples nothing has nothing to do
 
     def predict(self, observation, state=None, episode_start=None, deterministic=True):
         batched = is_vectorized_observation(observation, self.env.observation_space)

@@ -25,6 +25,7 @@ RayNormalization = Literal["z", "unit"]
 
 __all__ = [
     "camera_rays",
+    "check_depth",
     "crop_points",
     "depth_to_camera_points",
     "transform_points",
@@ -94,7 +95,8 @@ def camera_rays(intrinsics: CameraIntrinsics, normalize: RayNormalization = "z")
     return _cached_rays(*_ray_key(intrinsics, normalize))
 
 
-def _check_depth(depth: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
+def check_depth(depth: np.ndarray, intrinsics: CameraIntrinsics) -> np.ndarray:
+    """``depth`` as an array, or a ValueError when its shape is not the intrinsics'."""
     depth = np.asarray(depth)
     expected = (intrinsics.height, intrinsics.width)
     if depth.shape != expected:
@@ -127,7 +129,7 @@ def depth_to_camera_points(
     mask : np.ndarray
         Only with ``return_mask=True``.
     """
-    depth = _check_depth(depth, intrinsics)
+    depth = check_depth(depth, intrinsics)
     mask = np.isfinite(depth) & (depth > 0)
     rays_t = _cached_rays_t(*_ray_key(intrinsics, "z"))
     depths = depth.reshape(-1)

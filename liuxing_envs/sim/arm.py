@@ -217,6 +217,7 @@ class Arm:
 
         base_id = _require_id(model, mujoco.mjtObj.mjOBJ_BODY, ARM_BASE_BODY)
         self._is_arm_geom = _arm_geom_mask(model)
+        self._geom_ids = np.flatnonzero(self._is_arm_geom)
         self._live_collisions = _CollisionScene(
             model, self._scratch, self._qpos_at, self._is_arm_geom
         )
@@ -243,7 +244,7 @@ class Arm:
     @property
     def geom_ids(self) -> np.ndarray:
         """Ids of the arm's geoms (its links, down to the camera mount) in the live model."""
-        return np.flatnonzero(self._is_arm_geom)
+        return self._geom_ids.copy()
 
     @property
     def qpos(self) -> np.ndarray:

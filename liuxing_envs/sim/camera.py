@@ -30,6 +30,7 @@ import numpy as np
 
 from liuxing_envs.perception.pointcloud import (
     camera_rays,
+    check_depth,
     depth_to_camera_points,
     transform_points,
 )
@@ -1146,12 +1147,7 @@ class DepthCamera:
         cylinders and boxes are tested exactly, other geoms by their bounding box. Only the
         geoms whose bounding sphere meets the field of view, and only the pixels their box
         projects to, are tested."""
-        depth = np.asarray(depth)
-        if depth.shape != (self.intrinsics.height, self.intrinsics.width):
-            raise ValueError(
-                f"depth has shape {depth.shape}, not this camera's "
-                f"{(self.intrinsics.height, self.intrinsics.width)}"
-            )
+        depth = check_depth(depth, self.intrinsics)
         on_geoms = np.zeros(depth.shape, dtype=bool)
         ids = np.asarray(geom_ids, dtype=np.intp)
         position, rotation = self.pose(data)
