@@ -4,9 +4,17 @@ import mujoco
 import numpy as np
 import pytest
 
-from liuxing_envs.sim.arm import Arm, JointPath
+from liuxing_envs.sim.arm import JOINT_LEVER_ARMS, Arm, JointPath
+from liuxing_envs.sim.gripper import attach_gripper
 from liuxing_envs.sim.kinematics import flange_pose_in_base
-from liuxing_envs.sim.scene import HOME_QPOS, WRIST_CAMERA_SITE, load_scene_model, reset_to_home
+from liuxing_envs.sim.scene import (
+    ARM_JOINT_NAMES,
+    HOME_QPOS,
+    WRIST_CAMERA_SITE,
+    load_scene_model,
+    load_scene_spec,
+    reset_to_home,
+)
 from liuxing_envs.sim.ur_ik import solutions_of_one, ur_ik
 from liuxing_envs.sim.viewpoints import look_at, sphere_viewpoint, view_grid
 
@@ -147,6 +155,62 @@ def test_collision_checks_name_the_contact_and_leave_the_simulation_alone(sim):
     assert contacts and any("table_top" in (c.geom1, c.geom2) for c in contacts)
     assert all(c.depth > 0 for c in contacts)
     np.testing.assert_array_equal(data.qpos, before)
+
+
+def geom_surface_points(model, geom):
+    """Points of a primitive geom (local frame) and a radius to add: every point of the
+    geom is within that radius of one of them, and the farthest point is among them."""
+    kind, size = model.geom_type[geom], model.geom_size[geom]
+    if kind == mujoco.mjtGeom.mjGEOM_BOX:
+        return np.array(np.meshgrid(*[[-1, 1]] * 3)).reshape(3, -1).T * size, 0.0
+    if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        angle = np.linspace(0, 2 * np.pi, 72, endpoint=False)
+        ring = size[0] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        rims = [np.c_[ring, np.full(len(ring), z)] for z in (-size[1], size[1])]
+        return np.concatenate(rims), 0.0
+    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return np.array([[0, 0, -size[1]], [0, 0, size[1]]]), size[0]
+    assert kind == mujoco.mjtGeom.mjGEOM_SPHERE, f"geom {geom}: add its shape here"
+    return np.zeros((1, 3)), size[0]
+
+
+@pytest.mark.parametrize("tool", ["camera", "gripper"])
+def test_joint_lever_arms_bound_the_arm_with_either_tool(tool):
+    # The path check spaces its waypoints by these bounds: one too small lets the arm's
+    # surface move more than path_check_step between checks, and a thin obstacle slip through.
+    spec = load_scene_spec()
+    if tool == "gripper":
+        attach_gripper(spec)
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    arm = Arm(model, data)
+    joints = [model.joint(name).id for name in ARM_JOINT_NAMES]
+    solid = (model.geom_contype | model.geom_conaffinity) > 0
+    beyond = []
+    for joint in joints:
+        inside = np.zeros(model.nbody, dtype=bool)
+        inside[model.jnt_bodyid[joint]] = True
+        for body in range(model.jnt_bodyid[joint] + 1, model.nbody):
+            inside[body] |= inside[model.body_parentid[body]]
+        beyond.append(np.flatnonzero(inside[model.geom_bodyid] & solid))
+    shapes = {g: geom_surface_points(model, g) for g in np.unique(np.concatenate(beyond))}
+    rng = np.random.default_rng(0)
+    # Random configurations, and stretched ones (joints near multiples of 90 degrees).
+    configurations = [rng.uniform(arm.lower, arm.upper) for _ in range(1000)]
+    configurations += [rng.choice([-np.pi / 2, 0, np.pi / 2, np.pi], 6) for _ in range(1000)]
+    reach = np.zeros(6)
+    for qpos in configurations:
+        arm.set_qpos(qpos)
+        for k, joint in enumerate(joints):
+            anchor, axis = data.xanchor[joint], data.xaxis[joint]
+            for geom in beyond[k]:
+                local, radius = shapes[geom]
+                offsets = data.geom_xpos[geom] + local @ data.geom_xmat[geom].reshape(3, 3).T
+                offsets -= anchor
+                across = offsets - np.outer(offsets @ axis, axis)
+                reach[k] = max(reach[k], np.linalg.norm(across, axis=1).max() + radius)
+    assert np.all(reach <= JOINT_LEVER_ARMS), f"{tool}: reach {np.round(reach, 3)}"
+    assert reach[0] > 0.9  # the test measured the whole arm, not one link
 
 
 def test_path_check_finds_the_last_free_waypoint(sim):
