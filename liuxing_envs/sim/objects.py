@@ -32,6 +32,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull
 
+from liuxing_envs.disk_cache import cache_key, load_array, store_array
+
 __all__ = [
     "DEFAULT_OBSERVATION_AZIMUTH_COUNT",
     "DEFAULT_OBSERVATION_ELEVATIONS_DEG",
@@ -1285,13 +1287,39 @@ def _observable_samples(
         )
     points, normals = _surface_samples(mesh, count, seed, DEFAULT_INTERIOR_TOLERANCE)
     scaled_points = points * scale
-    mask = observable_mask(
-        mesh.scaled(scale),
-        scaled_points,
-        normals,
-        default_observation_viewpoints(radius),
-        table=table,
+    mask = _stored_observable_mask(
+        mesh.scaled(scale), scaled_points, normals, default_observation_viewpoints(radius), table
     )
     for array in (scaled_points, mask):
         array.setflags(write=False)
     return ObservableSamples(scaled_points, normals, mask)
+
+
+def _stored_observable_mask(
+    mesh: ObjectMesh, points: np.ndarray, normals: np.ndarray, viewpoints: np.ndarray, table: bool
+) -> np.ndarray:
+    """:func:`observable_mask` with its defaults, through the disk cache: the ray cast is
+    most of the time it takes to make a ViewPlanning-v0 env, and every process repeated it."""
+    key = cache_key(
+        _module_digest(),
+        np.__version__,
+        o3d.__version__,
+        mesh.vertices,
+        mesh.faces,
+        points,
+        normals,
+        viewpoints,
+        table,
+    )
+    mask = load_array("observable", key, (len(points),), bool)
+    if mask is None:
+        mask = observable_mask(mesh, points, normals, viewpoints, table=table)
+        store_array("observable", key, mask)
+    return mask
+
+
+@cache
+def _module_digest() -> str:
+    """This module's source, in every disk-cache key of what it computes: editing the code
+    (or a default it uses) misses the results stored before."""
+    return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()

@@ -1,0 +1,137 @@
+"""The disk cache of precomputed ground truth: bit-for-bit results, misses on any change,
+damaged entries replaced, and a cache that is off or unwritable costing only time."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from liuxing_envs import disk_cache
+from liuxing_envs.sim import objects
+from liuxing_envs.sim.objects import observable_samples
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    """An empty cache folder, a cold in-memory cache, and a count of the ray casts."""
+    folder = tmp_path / "cache"
+    monkeypatch.setenv(disk_cache.CACHE_ENV_VAR, str(folder))
+    objects._observable_samples.cache_clear()
+    casts = []
+    real = objects.observable_mask
+
+    def counted(*args, **kwargs):
+        casts.append(args[0].name)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(objects, "observable_mask", counted)
+    yield folder, casts
+    objects._observable_samples.cache_clear()
+
+
+def entries(folder):
+    return sorted(folder.glob("observable-*.npy"))
+
+
+def cold(*args, **kwargs):
+    """observable_samples as a new process would compute it: nothing in memory."""
+    objects._observable_samples.cache_clear()
+    return observable_samples(*args, **kwargs)
+
+
+def test_a_new_process_reads_the_stored_result_bit_for_bit(cache):
+    folder, casts = cache
+    first = cold("mug", 1.0, 1024)
+    assert casts == ["mug"] and len(entries(folder)) == 1
+    again = cold("mug", 1.0, 1024)
+    assert casts == ["mug"]  # read, not cast again
+    np.testing.assert_array_equal(again.observable, first.observable)
+    np.testing.assert_array_equal(again.points, first.points)
+    assert again.observable.dtype == bool and not again.observable.flags.writeable
+    assert 0.3 < again.observable.mean() < 1.0  # a real mask, not all or nothing
+
+
+def test_any_change_of_what_it_is_computed_from_misses(cache):
+    folder, casts = cache
+    variants = [
+        ("mug", 1.0, 1024, {}),
+        ("mug", 1.2, 1024, {}),  # scale
+        ("mug", 1.0, 2048, {}),  # sample count
+        ("mug", 1.0, 1024, {"seed": 1}),
+        ("mug", 1.0, 1024, {"radius": 0.3}),  # the views around it
+        ("mug", 1.0, 1024, {"table": False}),
+        ("bowl", 1.0, 1024, {}),  # another mesh
+    ]
+    cast = [cold(name, scale, count, **kw).observable for name, scale, count, kw in variants]
+    assert len(casts) == len(variants) and len(entries(folder)) == len(variants)
+    read = [cold(name, scale, count, **kw).observable for name, scale, count, kw in variants]
+    assert len(casts) == len(variants)  # every one read back, none cast again
+    for first, again in zip(cast, read, strict=True):  # and no entry read for another's
+        np.testing.assert_array_equal(first, again)
+    assert not np.array_equal(cast[0], cast[3]) and not np.array_equal(cast[0], cast[6])
+
+
+def test_a_damaged_entry_is_computed_again_and_replaced(cache):
+    folder, casts = cache
+    first = cold("mug", 1.0, 1024)
+    (entry,) = entries(folder)
+    for damage in (b"not an array", np.zeros(3, dtype=bool), np.zeros(1024, dtype=np.uint8)):
+        if isinstance(damage, bytes):
+            entry.write_bytes(damage)
+        else:
+            np.save(entry, damage)
+        casts.clear()
+        again = cold("mug", 1.0, 1024)
+        assert casts == ["mug"]
+        np.testing.assert_array_equal(again.observable, first.observable)
+        np.testing.assert_array_equal(np.load(entry), first.observable)  # replaced
+
+
+def test_the_cache_can_be_turned_off(cache, monkeypatch):
+    folder, casts = cache
+    monkeypatch.setenv(disk_cache.CACHE_ENV_VAR, "off")
+    first = cold("mug", 1.0, 1024)
+    second = cold("mug", 1.0, 1024)
+    assert casts == ["mug", "mug"] and not folder.exists()
+    np.testing.assert_array_equal(first.observable, second.observable)
+
+
+def test_an_unwritable_folder_warns_once_and_costs_only_time(cache, monkeypatch, tmp_path):
+    folder, casts = cache
+    blocker = tmp_path / "a_file"
+    blocker.write_text("a file where the cache folder's parent should be")
+    monkeypatch.setenv(disk_cache.CACHE_ENV_VAR, str(blocker / "cache"))
+    monkeypatch.setattr(disk_cache, "_warned_unwritable", False)
+    with pytest.warns(RuntimeWarning, match="cannot write the cache folder"):
+        first = cold("mug", 1.0, 1024)
+    with warnings.catch_warnings(record=True) as later:
+        warnings.simplefilter("always")
+        cold("bowl", 1.0, 1024)
+    assert not later  # once per process
+    assert casts == ["mug", "bowl"]
+    monkeypatch.setenv(disk_cache.CACHE_ENV_VAR, str(folder))
+    np.testing.assert_array_equal(cold("mug", 1.0, 1024).observable, first.observable)
+
+
+def test_cache_keys_tell_arrays_apart_by_dtype_and_shape():
+    data = np.arange(6, dtype=np.int32)
+    keys = {
+        disk_cache.cache_key(data),
+        disk_cache.cache_key(data.reshape(2, 3)),
+        disk_cache.cache_key(data.view(np.float32)),
+        disk_cache.cache_key(data, True),
+        disk_cache.cache_key(data, 1),
+    }
+    assert len(keys) == 5
+    assert disk_cache.cache_key(data.copy()) == disk_cache.cache_key(data)
+
+
+def test_the_cache_lives_in_the_user_cache_folder_unless_told(monkeypatch, tmp_path):
+    monkeypatch.delenv(disk_cache.CACHE_ENV_VAR)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert disk_cache.cache_dir() == tmp_path / "liuxing_envs"
+    monkeypatch.setenv(disk_cache.CACHE_ENV_VAR, str(tmp_path / "elsewhere"))
+    assert disk_cache.cache_dir() == tmp_path / "elsewhere"
+    for off in ("off", "OFF", "0", ""):
+        monkeypatch.setenv(disk_cache.CACHE_ENV_VAR, off)
+        assert disk_cache.cache_dir() is None
