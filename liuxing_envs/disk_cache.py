@@ -39,7 +39,12 @@ def cache_dir() -> Path | None:
         if value.strip().lower() in CACHE_OFF_VALUES or not value.strip():
             return None
         return Path(value).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    base = os.environ.get("XDG_CACHE_HOME")
+    if not base:
+        try:
+            base = Path.home() / ".cache"
+        except RuntimeError:  # no home folder to be found: nowhere to keep it
+            return None
     return Path(base) / "liuxing_envs"
 
 
