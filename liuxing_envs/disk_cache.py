@@ -10,7 +10,10 @@ a change to any of them misses the old entry instead of reading it.
 Where: ``$LIUXING_ENVS_CACHE`` if set (``off`` turns the cache off), else
 ``$XDG_CACHE_HOME/liuxing_envs`` or ``~/.cache/liuxing_envs``. Deleting the folder is always
 safe. A damaged entry is computed again and replaced; a folder that cannot be written only
-costs the time (one warning per process).
+costs the time (one warning per process). Entries that a code change made obsolete stay
+until the folder is deleted (each is a few kilobytes). One folder shared by machines of
+different CPUs may hand one the other's result: equally valid, though a ray grazing an edge
+may have landed the other way.
 """
 
 from __future__ import annotations
@@ -70,7 +73,7 @@ def load_array(kind: str, key: str, shape: tuple[int, ...], dtype) -> np.ndarray
     path = folder / f"{kind}-{key}.npy"
     try:
         array = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError):
+    except Exception:  # noqa: BLE001 - a damaged header raises tokenize's errors, among others
         return None
     if array.shape != tuple(shape) or array.dtype != np.dtype(dtype):
         return None
@@ -90,7 +93,15 @@ def store_array(kind: str, key: str, array: np.ndarray) -> None:
         descriptor, temporary = tempfile.mkstemp(dir=folder, prefix=f".{kind}-", suffix=".tmp")
         with os.fdopen(descriptor, "wb") as file:
             np.save(file, array, allow_pickle=False)
-        os.replace(temporary, folder / f"{kind}-{key}.npy")
+        target = folder / f"{kind}-{key}.npy"
+        try:
+            os.replace(temporary, target)
+        except OSError:
+            if not target.exists():
+                raise
+            # Another process stored it first and the file is in use (Windows): theirs holds
+            # the same array.
+            Path(temporary).unlink(missing_ok=True)
     except OSError as error:
         if temporary is not None:
             Path(temporary).unlink(missing_ok=True)

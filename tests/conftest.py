@@ -9,9 +9,9 @@ import tempfile
 # works headless (Mesa software rendering when there is no GPU).
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-# The tests compute the ground truth they check rather than read it from the user's disk
-# cache; the CLIs they start in subprocesses share this session's folder.
-if "LIUXING_ENVS_CACHE" not in os.environ:
-    _session_cache = tempfile.mkdtemp(prefix="liuxing_envs_test_cache_")
-    os.environ["LIUXING_ENVS_CACHE"] = _session_cache
-    atexit.register(shutil.rmtree, _session_cache, ignore_errors=True)
+# The tests compute the ground truth they check rather than read it from a disk cache
+# filled elsewhere (the user's, or the one $LIUXING_ENVS_CACHE names); the CLIs they start
+# in subprocesses share this session's folder.
+_session_cache = tempfile.mkdtemp(prefix="liuxing_envs_test_cache_")
+os.environ["LIUXING_ENVS_CACHE"] = _session_cache
+atexit.register(shutil.rmtree, _session_cache, ignore_errors=True)

@@ -98,6 +98,19 @@ DEFAULT_TABLE_THICKNESS = 0.02
 #: 8192 samples (the scale-free samples another ~0.4 MB per object).
 OBSERVABLE_CACHE_SIZE = 512
 
+
+def _source_digest() -> str | None:
+    """This module's source as imported, in every disk-cache key of what it computes:
+    editing the code (or a default it uses) misses the results stored before. None (no disk
+    cache) where the source cannot be read."""
+    try:
+        return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+_SOURCE_DIGEST = _source_digest()
+
 # Library tessellation.
 _SEGMENTS = 48  # around a surface of revolution
 _TUBE_SEGMENTS = 16  # around a swept tube (mug handle)
@@ -1300,8 +1313,10 @@ def _stored_observable_mask(
 ) -> np.ndarray:
     """:func:`observable_mask` with its defaults, through the disk cache: the ray cast is
     most of the time it takes to make a ViewPlanning-v0 env, and every process repeated it."""
+    if _SOURCE_DIGEST is None:
+        return observable_mask(mesh, points, normals, viewpoints, table=table)
     key = cache_key(
-        _module_digest(),
+        _SOURCE_DIGEST,
         np.__version__,
         o3d.__version__,
         mesh.vertices,
@@ -1316,10 +1331,3 @@ def _stored_observable_mask(
         mask = observable_mask(mesh, points, normals, viewpoints, table=table)
         store_array("observable", key, mask)
     return mask
-
-
-@cache
-def _module_digest() -> str:
-    """This module's source, in every disk-cache key of what it computes: editing the code
-    (or a default it uses) misses the results stored before."""
-    return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
