@@ -198,8 +198,14 @@ def test_joint_lever_arms_bound_the_arm_with_either_tool(tool):
     # Random configurations, and stretched ones (joints near multiples of 90 degrees).
     configurations = [rng.uniform(arm.lower, arm.upper) for _ in range(1000)]
     configurations += [rng.choice([-np.pi / 2, 0, np.pi / 2, np.pi], 6) for _ in range(1000)]
+    # The fingers too, anywhere from closed to fully open: open ones reach furthest.
+    fingers = [j for j in range(model.njnt) if j not in joints]
+    assert len(fingers) == (2 if tool == "gripper" else 0)
     reach = np.zeros(6)
     for qpos in configurations:
+        for finger in fingers:
+            low, high = model.jnt_range[finger]
+            data.qpos[model.jnt_qposadr[finger]] = rng.choice([low, high, rng.uniform(low, high)])
         arm.set_qpos(qpos)
         for k, joint in enumerate(joints):
             anchor, axis = data.xanchor[joint], data.xaxis[joint]

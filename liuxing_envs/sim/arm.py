@@ -65,10 +65,10 @@ IK_ROTATION_WEIGHT = 0.2
 PATH_CHECK_STEP = 0.02  # m
 #: Upper bounds on the distance from each joint axis to any point of the arm beyond it (m),
 #: which turn a joint-space step into a bound on how far the arm's surface moves. They hold
-#: with the wrist camera alone and with the parallel gripper attached (sampled maxima over
-#: the joint ranges, the gripper's fingers reaching furthest: 1.10, 1.10, 0.67, 0.28, 0.25
-#: and 0.09 m), with 4% or more to spare.
-JOINT_LEVER_ARMS = np.array([1.15, 1.15, 0.70, 0.30, 0.27, 0.15])
+#: with the wrist camera alone and with the parallel gripper attached, its fingers open or
+#: closed (sampled maxima over the joint ranges, the open fingers reaching furthest: 1.13,
+#: 1.12, 0.69, 0.30, 0.26 and 0.09 m), with 6% or more to spare.
+JOINT_LEVER_ARMS = np.array([1.20, 1.20, 0.75, 0.33, 0.29, 0.15])
 
 #: Dynamic moves last ``max|Δq| / max_joint_speed``: the set-point's mean speed on the
 #: joint that moves most. Its cubic ease peaks at 1.5 times that (1.5 rad/s), still well
