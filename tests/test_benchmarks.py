@@ -183,6 +183,8 @@ def test_soak_refuses_an_out_it_cannot_write_before_measuring(tmp_path):
         (("benchmarks.instrument_grasp_baselines", "--baselines", "x"), "invalid choice: 'x'"),
         (("benchmarks.view_planning_baselines", "--budget", "0"), "--budget within [1, 64]"),
         (("benchmarks.view_planning_baselines", "--episodes", "0"), "--episodes must be"),
+        (("benchmarks.reconstruction_support", "--episodes", "0"), "--episodes must be"),
+        (("benchmarks.reconstruction_support", "--spacings", "-1"), "--spacings must be"),
     ],
 )
 def test_baseline_benchmarks_refuse_bad_flags_before_building_envs(argv, message):
@@ -359,3 +361,15 @@ def test_report_saved_between_the_two_fetch_measurements_shows_the_first():
     assert any("without rendering" in goal and met for goal, met in goals.items())
     assert not any("with 84x84 RGB" in goal for goal in goals)
     assert "| 1.50x |" in text  # the grasp env against Fetch without rendering
+
+
+@pytest.mark.slow
+def test_reconstruction_support_trim_removes_surface_away_from_the_scan():
+    from benchmarks.reconstruction_support import measure
+
+    result = measure("held_out", 1, (0.0, 2.0, 100.0), seed=7)
+    untrimmed, trimmed, far = (result["rows"][k] for k in (0.0, 2.0, 100.0))
+    assert result["scans"] == 2 and 1.0 < result["median_spacing_mm"] < 10.0
+    assert far == untrimmed  # a support far beyond the scan removes nothing
+    assert trimmed[1] > untrimmed[1]  # precision: the made-up surface is gone
+    assert trimmed[2] > untrimmed[2] - 0.05  # recall: the scanned surface stays

@@ -3,6 +3,7 @@
 import numpy as np
 import open3d as o3d
 import pytest
+from scipy.spatial import cKDTree
 
 from liuxing_envs.perception.reconstruction import (
     reconstruct,
@@ -60,13 +61,34 @@ def test_sphere_mesh_is_accurate_and_complete(sphere_scan):
 
 def test_untrimmed_sphere_mesh_is_watertight():
     rng = np.random.default_rng(1)
-    result = reconstruct(sphere(rng, 20000), poisson_depth=DEPTH, density_quantile=0.0)
+    result = reconstruct(
+        sphere(rng, 20000), poisson_depth=DEPTH, density_quantile=0.0, support_distance=0.0
+    )
     assert result.has_mesh
     summary = result.summary()
     assert summary["closed_manifold"] and summary["num_open_edges"] == 0
     # A closed surface of genus 0 (a sphere): V - E + F = 2, with E = 3F / 2.
     vertices, triangles = len(result.vertices), len(result.triangles)
     assert vertices - 3 * triangles // 2 + triangles == 2
+
+
+def test_surface_poisson_makes_up_across_a_gap_in_the_scan_is_trimmed():
+    # A sphere seen from two opposite sides only: Poisson bridges the unseen band between the
+    # caps with surface of its own, inside the cloud's box, which the density quantile keeps.
+    rng = np.random.default_rng(4)
+    points = sphere(rng, 30000)
+    seen = points[np.abs(points[:, 0] - CENTRE[0]) > 0.5 * RADIUS]  # half the area
+    gt = sphere(rng, 50000)
+    trimmed = reconstruct(seen, poisson_depth=DEPTH)
+    kept = reconstruct(seen, poisson_depth=DEPTH, support_distance=0.0)
+    assert trimmed.has_mesh and kept.has_mesh
+    support = trimmed.parameters["support_distance"]
+    assert 0.002 < support < 0.006  # 2 x Poisson's cell here (about 2 mm at depth 6)
+    reach, _ = cKDTree(np.asarray(trimmed.cloud.points)).query(trimmed.vertices)
+    assert reach.max() <= support  # every vertex near a cleaned point
+    assert kept.metrics(gt)["precision"] < 0.9  # the bridge, untrimmed
+    assert trimmed.metrics(gt)["precision"] > 0.97
+    assert trimmed.metrics(gt)["recall"] > 0.48  # the two caps' surface stays
 
 
 def test_the_same_scan_gives_the_same_mesh():
@@ -254,6 +276,8 @@ def test_invalid_input_is_rejected():
         ("normal_radius", -0.01),
         ("voxel_size", float("inf")),
         ("min_mesh_points", -1),
+        ("support_distance", -0.001),
+        ("support_distance", float("nan")),
     ],
 )
 def test_each_bad_keyword_is_named(keyword, value):
