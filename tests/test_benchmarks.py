@@ -185,6 +185,7 @@ def test_soak_refuses_an_out_it_cannot_write_before_measuring(tmp_path):
         (("benchmarks.view_planning_baselines", "--episodes", "0"), "--episodes must be"),
         (("benchmarks.reconstruction_support", "--episodes", "0"), "--episodes must be"),
         (("benchmarks.reconstruction_support", "--spacings", "-1"), "--spacings must be"),
+        (("benchmarks.reconstruction_support", "--seed", "-1"), "--seed must be"),
     ],
 )
 def test_baseline_benchmarks_refuse_bad_flags_before_building_envs(argv, message):
@@ -368,8 +369,9 @@ def test_reconstruction_support_trim_removes_surface_away_from_the_scan():
     from benchmarks.reconstruction_support import measure
 
     result = measure("held_out", 1, (0.0, 2.0, 100.0), seed=7)
-    untrimmed, trimmed, far = (result["rows"][k] for k in (0.0, 2.0, 100.0))
+    untrimmed, trimmed, far, default = (result["rows"][k] for k in (0.0, 2.0, 100.0, "default"))
     assert result["scans"] == 2 and 1.0 < result["median_spacing_mm"] < 10.0
     assert far == untrimmed  # a support far beyond the scan removes nothing
+    assert default == trimmed  # the scan's spacing, not Poisson's finer cell, decides
     assert trimmed[1] > untrimmed[1]  # precision: the made-up surface is gone
     assert trimmed[2] > untrimmed[2] - 0.05  # recall: the scanned surface stays
