@@ -225,7 +225,9 @@ class ViewPlanningEnv(gym.Env):
     sampled uniformly on the object's surface, restricted to those some view of the upper
     hemisphere can see (nothing resting on the table, nothing occluded from every view); a
     sample is covered when a fused point lies within ε = ``epsilon_fraction`` × the object's
-    bounding-box diagonal.
+    bounding-box diagonal. Which samples some view can see is ray-cast once per object and
+    scale when the env is made, and kept on disk for the next process
+    (:mod:`liuxing_envs.disk_cache`; ``LIUXING_ENVS_CACHE=off`` turns that off).
 
     **Arguments** (all keyword): ``view_budget``, ``action_mode``, ``motion``
     ({"kinematic", "dynamic"}), ``object_set`` ({"train", "validation", "held_out", "all",
