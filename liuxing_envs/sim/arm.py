@@ -60,8 +60,11 @@ IK_STALL_RATIO = 0.9
 IK_ROTATION_WEIGHT = 0.2
 
 #: Largest displacement of any point of the arm between two checked waypoints of a path.
-#: The thinnest part of the arm (the 25 mm camera housing) stays inside an obstacle for at
-#: least 25 mm plus the obstacle's width of travel, so a 20 mm step cannot skip a contact.
+#: The thinnest part of the camera arm (the 25 mm camera housing) stays inside an obstacle
+#: for at least 25 mm plus the obstacle's width of travel, so a 20 mm step cannot skip a
+#: contact. With the gripper attached the fingers are 12 mm thick and the pads 6 mm: give
+#: such an arm a path_check_step under 6 mm for the same guarantee (no env here checks the
+#: gripper arm's paths; InstrumentGrasp-v0 moves it by servo and lets physics collide).
 PATH_CHECK_STEP = 0.02  # m
 #: Upper bounds on the distance from each joint axis to any point of the arm beyond it (m),
 #: which turn a joint-space step into a bound on how far the arm's surface moves. They hold
@@ -187,7 +190,9 @@ class Arm:
         A model compiled from :func:`liuxing_envs.sim.scene.load_scene_spec` (possibly with
         objects added) and its live data.
     path_check_step:
-        Largest displacement (m) of any point of the arm between collision-checked waypoints.
+        Largest displacement (m) of any point of the arm between collision-checked waypoints:
+        below the thickness of the thinnest part that could meet an obstacle (the default
+        suits the camera arm, not the gripper's 6 mm pads; see ``PATH_CHECK_STEP``).
     ik_seed:
         Seed of the random restarts of the IK; fixed so the same query gives the same answer.
     """
