@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from liuxing_envs.sim.arm import JOINT_LEVER_ARMS, Arm, JointPath
+from liuxing_envs.sim.arm import JOINT_LEVER_ARMS, Arm, JointPath, _subtree
 from liuxing_envs.sim.gripper import attach_gripper
 from liuxing_envs.sim.kinematics import flange_pose_in_base
 from liuxing_envs.sim.scene import (
@@ -186,13 +186,10 @@ def test_joint_lever_arms_bound_the_arm_with_either_tool(tool):
     arm = Arm(model, data)
     joints = [model.joint(name).id for name in ARM_JOINT_NAMES]
     solid = (model.geom_contype | model.geom_conaffinity) > 0
-    beyond = []
-    for joint in joints:
-        inside = np.zeros(model.nbody, dtype=bool)
-        inside[model.jnt_bodyid[joint]] = True
-        for body in range(model.jnt_bodyid[joint] + 1, model.nbody):
-            inside[body] |= inside[model.body_parentid[body]]
-        beyond.append(np.flatnonzero(inside[model.geom_bodyid] & solid))
+    beyond = [
+        np.flatnonzero(np.isin(model.geom_bodyid, _subtree(model, model.jnt_bodyid[j])) & solid)
+        for j in joints
+    ]
     shapes = {g: geom_surface_points(model, g) for g in np.unique(np.concatenate(beyond))}
     rng = np.random.default_rng(0)
     # Random configurations, and stretched ones (joints near multiples of 90 degrees).

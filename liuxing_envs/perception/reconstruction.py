@@ -435,7 +435,8 @@ def reconstruct(
         )
     if num_clean < max(int(min_mesh_points), 3):
         return result(False, f"too few points for a mesh: {num_clean} < {min_mesh_points}")
-    if not np.any(cloud.get_max_bound() > cloud.get_min_bound()):
+    low, high = cloud.get_min_bound(), cloud.get_max_bound()
+    if not np.any(high > low):
         # open3d's Poisson crashes the process on a cloud of one repeated point.
         return result(False, f"the {num_clean} cleaned points are all one point: no surface")
 
@@ -451,17 +452,15 @@ def reconstruct(
     densities = np.asarray(densities)
     if density_quantile > 0 and densities.size:
         mesh.remove_vertices_by_mask(densities < np.quantile(densities, density_quantile))
-    low = cloud.get_min_bound() - crop_margin
-    high = cloud.get_max_bound() + crop_margin
     try:
-        mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(low, high))
+        mesh = mesh.crop(o3d.geometry.AxisAlignedBoundingBox(low - crop_margin, high + crop_margin))
     except RuntimeError as error:  # a flat cloud with no crop margin: a box of no volume
         reason = f"the cloud is flat and crop_margin is {crop_margin} m"
         return result(False, f"no box to crop the mesh to ({reason}): {_open3d_message(error)}")
     support_tree = cKDTree(np.asarray(cloud.points))
     if support_distance is None:
         spacing, _ = support_tree.query(support_tree.data, k=2)
-        extent = float(np.max(cloud.get_max_bound() - cloud.get_min_bound()))
+        extent = float(np.max(high - low))
         cell = poisson_scale * extent / 2 ** int(poisson_depth)
         support_distance = DEFAULT_SUPPORT_SPACINGS * max(float(np.median(spacing[:, 1])), cell)
     parameters["support_distance"] = float(support_distance)
