@@ -444,6 +444,42 @@ def test_closed_form_ik_of_one_pose_agrees_with_the_batch_branch_by_branch():
         np.testing.assert_allclose(solutions[0][valid[0]], expected[expected_valid], atol=1e-9)
 
 
+def test_a_controllers_closed_form_query_gives_what_solve_ik_gives(sim):
+    """closed_form_nearest, the controllers' per-step IK, returns solve_ik's analytic answer
+    without its checks: the same joint angles (bit for bit: the same floats) that put the
+    site at the pose, None where solve_ik finds no solution, and a clear error for a site
+    the closed form cannot serve."""
+    model, _, arm = sim
+    rng = np.random.default_rng(17)
+    solved = unreachable = 0
+    for q in rng.uniform(arm.lower / 2, arm.upper / 2, (150, 6)):
+        position, rotation = independent_site_pose(model, q)
+        if rng.random() < 0.2:
+            position = position + rng.choice([-1.0, 1.0], 3) * 1.2  # beyond the arm's reach
+        reference = q + rng.normal(scale=0.3, size=6) + 2 * np.pi * rng.integers(-1, 2, size=6)
+        reference = np.clip(reference, arm.lower, arm.upper)
+        expected = arm.solve_ik(
+            position, rotation, seed_qpos=reference, method="analytic", check_collisions=False
+        )
+        got = arm.closed_form_nearest(position, rotation, reference, site=WRIST_CAMERA_SITE)
+        if not expected.success:
+            assert got is None
+            unreachable += 1
+            continue
+        np.testing.assert_array_equal(got, expected.qpos)
+        reached, turned = independent_site_pose(model, got)
+        np.testing.assert_allclose(reached, position, atol=1e-9)
+        np.testing.assert_allclose(turned, rotation, atol=1e-9)
+        solved += 1
+    assert solved > 100 and unreachable > 10
+    spec = load_scene_spec()
+    spec.body("forearm_link").add_site(name="elbow_marker")
+    marked = spec.compile()
+    elbow_arm = Arm(marked, mujoco.MjData(marked))
+    with pytest.raises(ValueError, match="fixed to the last link, not 'elbow_marker'"):
+        elbow_arm.closed_form_nearest(position, rotation, reference, site="elbow_marker")
+
+
 @pytest.mark.parametrize(
     ("target", "up"),
     [

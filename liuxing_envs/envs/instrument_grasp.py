@@ -562,7 +562,7 @@ class InstrumentGraspEnv(gym.Env):
         self._impact_violations = 0
         self._start_height = self.world.grasp_point()[2]
         self._episode_ready = True
-        info = self._info(terms={}, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0)
+        info = self._info(terms={}, grasped=False, step_peak=0.0, success=False, lift=0.0)
         return self._observation(), info
 
     def step(self, action):
@@ -585,24 +585,27 @@ class InstrumentGraspEnv(gym.Env):
             world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
 
         model, data, gripper = world.model, world.data, world.gripper
-        pad_peak, impact_peak = np.zeros(2), 0.0
-        forces = gripper.fingertip_forces()
+        # The pads' peaks as Python floats: this loop runs five times a step, and numpy's
+        # per-call overhead on 2-vectors cost more than the bookkeeping's arithmetic.
+        peak_left = peak_right = impact_peak = 0.0
+        left, right = gripper.fingertip_forces().tolist()
         divergences = divergence_count(data)
         for start in range(0, self.substeps, FORCE_SAMPLE_SUBSTEPS):
             # Noslip iterations stop a held instrument creeping in the pads; they cost a third
             # of a physics step, so they run only while a pad touches something.
-            model.opt.noslip_iterations = GRASP_NOSLIP_ITERATIONS if forces.max() > 0.0 else 0
+            model.opt.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
             mujoco.mj_step(model, data, nstep=min(FORCE_SAMPLE_SUBSTEPS, self.substeps - start))
-            forces = gripper.fingertip_forces()
-            np.maximum(pad_peak, forces, out=pad_peak)
+            left, right = gripper.fingertip_forces().tolist()
+            peak_left, peak_right = max(peak_left, left), max(peak_right, right)
             impact_peak = max(impact_peak, world.impact_force())
-            if pad_peak.max() > self.hard_limit or impact_peak > self.hard_impact_limit:
+            if max(peak_left, peak_right) > self.hard_limit or impact_peak > self.hard_impact_limit:
                 # Protective stop, as a real arm's force monitor does: hold the arm and the
                 # fingers where they are and end the step (and the episode) here.
                 world.set_arm_ctrl(world.arm.qpos)
                 gripper.command(gripper.opening())
                 mujoco.mj_step(model, data, nstep=FORCE_SAMPLE_SUBSTEPS)
-                np.maximum(pad_peak, gripper.fingertip_forces(), out=pad_peak)
+                left, right = gripper.fingertip_forces().tolist()
+                peak_left, peak_right = max(peak_left, left), max(peak_right, right)
                 impact_peak = max(impact_peak, world.impact_force())
                 break
         # Checked once per control step: after a divergence MuJoCo's reset state is finite,
@@ -616,7 +619,7 @@ class InstrumentGraspEnv(gym.Env):
         lift = grasp_point[2] - self._start_height
         at_height = grasped and lift >= self.target_height
         self._hold_count = self._hold_count + 1 if at_height else 0
-        step_peak = float(pad_peak.max())
+        step_peak = max(peak_left, peak_right)
         self._peak_force = max(self._peak_force, step_peak)
         self._force_violations += step_peak > self.force_limit
         self._impact_violations += impact_peak > self.impact_limit
@@ -633,7 +636,7 @@ class InstrumentGraspEnv(gym.Env):
             "reward_lift": 2.0 * min(1.0, max(lift, 0.0) / self.target_height) if grasped else 0.0,
             "reward_hold": float(at_height),
             "reward_force": -self.force_penalty
-            * float(np.sum(np.maximum(pad_peak - self.force_limit, 0.0))),
+            * (max(peak_left - self.force_limit, 0.0) + max(peak_right - self.force_limit, 0.0)),
             "reward_impact": -self.impact_penalty * max(0.0, impact_peak - self.impact_limit),
             "reward_failure": -self.failure_penalty if broke_limit else 0.0,
             # Ending early must not pay less than holding on until the time limit would.
@@ -649,7 +652,7 @@ class InstrumentGraspEnv(gym.Env):
         info = self._info(
             terms,
             grasped=grasped,
-            pad_peak=pad_peak,
+            step_peak=step_peak,
             success=success,
             lift=lift,
             broke_limit=broke_limit,
@@ -663,7 +666,7 @@ class InstrumentGraspEnv(gym.Env):
         self._episode_ready = False
         terms = dict.fromkeys(REWARD_TERMS, 0.0)
         info = self._info(
-            terms, grasped=False, pad_peak=np.zeros(2), success=False, lift=0.0, unstable=True
+            terms, grasped=False, step_peak=0.0, success=False, lift=0.0, unstable=True
         )
         observation = {key: np.nan_to_num(value) for key, value in self._observation().items()}
         return observation, 0.0, False, True, info
@@ -770,54 +773,52 @@ class InstrumentGraspEnv(gym.Env):
         )
         yaw = world.tcp_yaw() + self.max_yaw * arm_action[3]
         yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
-        ik = world.arm.solve_ik(
-            target,
-            tool_down(yaw),
-            site=TCP_SITE,
-            check_collisions=False,
-            seed_qpos=world.arm_ctrl(),
-            method="analytic",
-        )
+        reference = world.arm_ctrl()
+        qpos = world.arm.closed_form_nearest(target, tool_down(yaw), reference, site=TCP_SITE)
         # Near a joint limit the nearest solution can be another arm configuration (elbow or
         # wrist flipped), which a servo would swing to across the workspace: refused, as an
         # unreachable target is.
-        if ik.success and np.abs(ik.qpos - world.arm_ctrl()).max() <= MAX_SETPOINT_JUMP:
-            world.set_arm_ctrl(ik.qpos)
+        if qpos is not None and np.abs(qpos - reference).max() <= MAX_SETPOINT_JUMP:
+            world.set_arm_ctrl(qpos)
 
     def _observation(self) -> dict:
-        world = self.world
+        world, gripper = self.world, self.world.gripper
         tcp = world.tcp_position()
         yaw = world.tcp_yaw()
-        proprio = np.concatenate(
-            [
-                world.arm.qpos,
-                world.arm.qvel,
-                tcp,
-                [math.cos(yaw), math.sin(yaw)],
-                [world.gripper.opening(), world.gripper.commanded_opening()],
-            ]
-        )
+        cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+        # Lists of Python floats made into one float32 array each: concatenating 2- and
+        # 3-vectors in numpy cost twice as much, every step.
+        proprio = [
+            *world.arm.qpos.tolist(),
+            *world.arm.qvel.tolist(),
+            *tcp.tolist(),
+            cos_yaw,
+            sin_yaw,
+            gripper.opening(),
+            gripper.commanded_opening(),
+        ]
         obs = {
-            "proprio": proprio.astype(np.float32),
-            "forces": world.gripper.fingertip_forces().astype(np.float32),
+            "proprio": np.array(proprio, dtype=np.float32),
+            "forces": gripper.fingertip_forces().astype(np.float32),
         }
         if self.obs_mode == "state":
             grasp_point, axis = world.grasp_point(), world.grasp_axis()
             # The same geometry relative to the tool, as a controller needs it: millimetre
             # offsets are small differences of the absolute positions, which a network
             # fed normalised absolute inputs resolves poorly.
-            dx, dy, dz = grasp_point - tcp
-            cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+            dx, dy, dz = (grasp_point - tcp).tolist()
             misalignment = 2.0 * (yaw - jaws_across(axis))  # the jaws: half-turn symmetric
-            obs["instrument"] = np.concatenate(
-                [
-                    grasp_point,
-                    axis,
-                    world.instrument_velocity(),
-                    [cos_yaw * dx + sin_yaw * dy, -sin_yaw * dx + cos_yaw * dy, dz],
-                    [math.cos(misalignment), math.sin(misalignment)],
-                ]
-            ).astype(np.float32)
+            instrument = [
+                *grasp_point.tolist(),
+                *axis.tolist(),
+                *world.instrument_velocity().tolist(),
+                cos_yaw * dx + sin_yaw * dy,
+                -sin_yaw * dx + cos_yaw * dy,
+                dz,
+                math.cos(misalignment),
+                math.sin(misalignment),
+            ]
+            obs["instrument"] = np.array(instrument, dtype=np.float32)
         else:
             depth = world.camera(self).render(world.data)
             obs["depth"] = self.encode_depth(depth)[None]
@@ -830,7 +831,7 @@ class InstrumentGraspEnv(gym.Env):
         terms: dict,
         *,
         grasped: bool,
-        pad_peak,
+        step_peak: float,
         success: bool,
         lift: float,
         unstable: bool = False,
@@ -842,8 +843,8 @@ class InstrumentGraspEnv(gym.Env):
             "is_success": bool(success),
             "grasped": bool(grasped),
             "peak_force": self._peak_force,
-            "step_peak_force": float(np.max(pad_peak)),
-            "grip_force": float(np.max(world.gripper.fingertip_forces())),
+            "step_peak_force": step_peak,
+            "grip_force": max(world.gripper.fingertip_forces().tolist()),
             "lift_height": float(lift),
             "force_violations": self._force_violations,
             "impact_violations": self._impact_violations,

@@ -501,7 +501,7 @@ class Arm:
             flange_in_base = self._base_inverse @ _homogeneous(target_p, target_r) @ flange_in_site
             ordered = self._nearest_first_of_few(solutions_of_one(flange_in_base), reference)
         tried, colliding = 0, None
-        for q in ordered:
+        for q in map(np.asarray, ordered):
             tried += 1
             if check_collisions and self.in_collision(q):
                 colliding = q if colliding is None else colliding
@@ -530,25 +530,63 @@ class Arm:
 
     def _nearest_first_of_few(
         self, solutions: list[tuple[int, list[float]]], reference: np.ndarray
-    ) -> list[np.ndarray]:
+    ) -> list[list[float]]:
         """:meth:`_nearest_first` of a few solutions (``solutions_of_one``'s), on Python
-        floats: numpy's per-call overhead would cost more than the arithmetic."""
-        towards, lower, upper = reference.tolist(), self.lower.tolist(), self.upper.tolist()
+        floats (numpy's per-call overhead would cost more than the arithmetic), as lists of
+        joint angles. It runs on every step of a controller, so the common cases skip calls:
+        a joint within half a turn of the reference needs no whole turns (``round`` of a
+        quotient within +-0.5 is 0), one inside its limits needs no clipping."""
+        joint_bounds = [
+            (near, low - IK_LIMIT_SLACK, high + IK_LIMIT_SLACK, low, high)
+            for near, low, high in zip(
+                reference.tolist(), self.lower.tolist(), self.upper.tolist(), strict=True
+            )
+        ]
         kept = []
         for _, angles in solutions:
-            joints = []
-            for angle, near, low, high in zip(angles, towards, lower, upper, strict=True):
-                shifted = angle + _TWO_PI * round((near - angle) / _TWO_PI)
-                if low - IK_LIMIT_SLACK <= shifted <= high + IK_LIMIT_SLACK:
+            joints, distance2 = [], 0.0
+            for angle, (near, slack_low, slack_high, low, high) in zip(
+                angles, joint_bounds, strict=True
+            ):
+                gap = near - angle
+                if -math.pi <= gap <= math.pi:
+                    shifted = angle + 0.0  # as angle + 2 pi * 0 (a -0.0 becomes 0.0)
+                else:
+                    shifted = angle + _TWO_PI * round(gap / _TWO_PI)
+                if slack_low <= shifted <= slack_high:
                     angle = shifted
-                elif not low - IK_LIMIT_SLACK <= angle <= high + IK_LIMIT_SLACK:
+                elif not slack_low <= angle <= slack_high:
                     break
-                joints.append(min(max(angle, low), high))
+                if not low <= angle <= high:
+                    angle = min(max(angle, low), high)
+                joints.append(angle)
+                distance2 += (angle - near) * (angle - near)
             else:
-                distance2 = sum((a - r) * (a - r) for a, r in zip(joints, towards, strict=True))
                 kept.append((distance2, joints))
         kept.sort(key=lambda pair: pair[0])
-        return [np.array(joints) for _, joints in kept]
+        return [joints for _, joints in kept]
+
+    def closed_form_nearest(
+        self,
+        position: np.ndarray,
+        rotation: np.ndarray,
+        reference: np.ndarray,
+        site: str = WRIST_CAMERA_SITE,
+    ) -> np.ndarray | None:
+        """The joint angles, within the limits, that put ``site`` at the pose by the closed
+        form, nearest ``reference`` (joint space), or None where none exist: what
+        ``solve_ik(position, rotation, site=site, seed_qpos=reference, method="analytic",
+        check_collisions=False)`` returns as ``qpos`` when it succeeds. For a controller's
+        per-step query: no collision check, no residuals, and no checks of the inputs, which
+        must be a finite 3-vector, a proper 3x3 rotation and finite joint angles."""
+        flange_in_site = self._flange_from_site(self.site_id(site))
+        if flange_in_site is None:
+            raise ValueError(
+                f"the closed-form IK needs a site fixed to the last link, not {site!r}"
+            )
+        flange_in_base = self._base_inverse @ _homogeneous(position, rotation) @ flange_in_site
+        ordered = self._nearest_first_of_few(solutions_of_one(flange_in_base), reference)
+        return np.array(ordered[0]) if ordered else None
 
     def _ik_result(self, success, q, sid, target_p, target_r, roll_free, attempts, colliding):
         # The collision scene holds the same arm, so its kinematics give the same site pose;

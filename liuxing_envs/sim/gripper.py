@@ -75,7 +75,8 @@ class Gripper:
 
     def opening(self) -> float:
         """Distance between the pads (m)."""
-        return float(np.sum(self.data.qpos[self._qpos_idx]))
+        left, right = self.data.qpos[self._qpos_idx].tolist()  # np.sum costs 5x more
+        return left + right
 
     def command(self, opening: float) -> None:
         """Set the servo target: the pad distance to close or open to (m), clipped to range."""
@@ -107,7 +108,8 @@ class Gripper:
         self.model.actuator_forcerange[self._actuators] = (-self.max_force, self.max_force)
 
     def commanded_opening(self) -> float:
-        return float(np.sum(self.data.ctrl[self._actuators]))
+        left, right = self.data.ctrl[self._actuators].tolist()
+        return left + right
 
     def fingertip_forces(self) -> np.ndarray:
         """Normal force on the left and right pad (N), from the touch sensors."""
