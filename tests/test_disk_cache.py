@@ -58,7 +58,8 @@ def test_any_change_of_what_it_is_computed_from_misses(cache):
         ("mug", 1.2, 1024, {}),  # scale
         ("mug", 1.0, 2048, {}),  # sample count
         ("mug", 1.0, 1024, {"seed": 1}),
-        ("mug", 1.0, 1024, {"radius": 0.3}),  # the views around it
+        ("mug", 1.0, 1024, {"radii": (0.32, 0.45)}),  # the views around it
+        ("mug", 1.0, 1024, {"elevations_deg": (30.0, 90.0)}),
         ("mug", 1.0, 1024, {"table": False}),
         ("bowl", 1.0, 1024, {}),  # another mesh
     ]
@@ -68,7 +69,7 @@ def test_any_change_of_what_it_is_computed_from_misses(cache):
     assert len(casts) == len(variants)  # every one read back, none cast again
     for first, again in zip(cast, read, strict=True):  # and no entry read for another's
         np.testing.assert_array_equal(first, again)
-    assert not np.array_equal(cast[0], cast[3]) and not np.array_equal(cast[0], cast[6])
+    assert not np.array_equal(cast[0], cast[3]) and not np.array_equal(cast[0], cast[7])
 
 
 def test_a_damaged_entry_is_computed_again_and_replaced(cache):

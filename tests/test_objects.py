@@ -8,7 +8,6 @@ import open3d as o3d
 import pytest
 
 from liuxing_envs.sim.objects import (
-    DEFAULT_OBSERVATION_RADIUS,
     OBJECT_NAMES,
     OBJECT_SETS,
     PROCEDURAL_SET_SIZE,
@@ -485,7 +484,7 @@ def test_default_viewpoints_cover_the_upper_hemisphere():
     assert views.shape == (97, 3)
     np.testing.assert_allclose(np.linalg.norm(views, axis=1), 0.5)
     elevation = np.degrees(np.arcsin(views[:, 2] / 0.5))
-    assert elevation.min() == pytest.approx(10.0) and elevation.max() == pytest.approx(90.0)
+    assert elevation.min() == pytest.approx(20.0) and elevation.max() == pytest.approx(90.0)
     assert np.sum(np.isclose(elevation, 90.0)) == 1  # the top view once
     shifted = default_observation_viewpoints(0.3, center=(0.1, 0, 0.05), elevations_deg=(45,))
     assert shifted.shape == (24, 3)
@@ -542,22 +541,41 @@ def test_observable_samples_are_cached_and_scale_consistently():
     # A box: everything but its bottom (area share 0.06*0.1 / 0.0248) is observable.
     box = observable_samples(_box_mesh(), 0.9, 4096)
     assert box.observable.mean() == pytest.approx(1 - 0.006 / 0.0248, abs=0.03)
-    with pytest.raises(ValueError, match="radius"):
-        observable_samples("obelisk", 1.0, 1024, radius=0.1)
+    with pytest.raises(ValueError, match="observation radius 0.05 m must exceed"):
+        observable_samples("obelisk", 1.0, 1024, radii=(0.05, 0.4))
+    with pytest.raises(ValueError, match="non-empty"):
+        observable_samples("obelisk", 1.0, 1024, elevations_deg=())
     with pytest.raises(ValueError, match="scale"):
         observable_samples("mug", -1.0)
 
 
 def test_every_object_has_observable_samples_at_the_largest_scale():
-    # The default observation sphere clears every object at scale 1.2, and most of each
+    # The default observation spheres clear every object at scale 1.2, and most of each
     # object's surface is observable while the part resting on the table is not.
     for name in OBJECT_NAMES:
-        points, normals, observable = observable_samples(
-            name, 1.2, 512, radius=DEFAULT_OBSERVATION_RADIUS
-        )
+        points, normals, observable = observable_samples(name, 1.2, 512)
         assert 0.5 < observable.mean() < 1.0, name
         resting = (points[:, 2] < 1e-9) & (normals[:, 2] < -0.99)
         assert not observable[resting].any(), name
+
+
+def test_observability_is_judged_from_the_view_space_around_the_objects_middle():
+    """What only a view outside ViewPlanning-v0's view space sees does not count: the
+    underside of a table's top shows from a view near the table plane, but from no view at
+    20-90 deg around the table's middle, at any of its scales; a narrower view space (the
+    env's own elevation range) sees less of a T-pipe lying on its side."""
+    table = get_object("table")
+    height = table.extents[2]
+    for scale in (0.8, 1.0, 1.2):
+        points, normals, observable = observable_samples(table, scale, 2048)
+        underside = (normals[:, 2] < -0.99) & (points[:, 2] > 0.5 * scale * height)
+        assert underside.sum() > 50
+        assert not observable[underside].any()
+        low_view = [[0.45, 0.0, 0.3 * scale * height]]  # under the top, beside the table
+        assert observable_mask(table.scaled(scale), points, normals, low_view)[underside].any()
+    wide = observable_samples("t_pipe", 1.0, 2048).observable
+    high = observable_samples("t_pipe", 1.0, 2048, elevations_deg=(60.0, 75.0, 90.0)).observable
+    assert not (high & ~wide).any() and high.mean() < wide.mean() - 0.05
 
 
 def test_a_mesh_in_many_pieces_is_sampled_with_a_warning():

@@ -745,6 +745,29 @@ def test_the_default_table_crop_leaves_every_observable_sample_counted():
     env.close()
 
 
+def test_coverage_counts_what_the_envs_own_view_space_sees():
+    """The observable samples are those a view of this env's view space sees: a narrower
+    elevation and radius range counts fewer of a T-pipe's (its lower flanks), and exactly
+    those observable_samples finds on that space, less the ones under the table crop."""
+    from liuxing_envs.sim.objects import observable_samples
+
+    kwargs = {"objects": ["t_pipe"], "scales": (1.0,), "coverage_samples": 2048}
+    wide = ViewPlanningEnv(**kwargs)
+    narrow = ViewPlanningEnv(**kwargs, elevation_range_deg=(60, 90), radius_range=(0.35, 0.45))
+    for env in (wide, narrow):
+        env.reset(seed=0)
+    truth = observable_samples(
+        "t_pipe", 1.0, 2048, radii=(0.35, 0.45), elevations_deg=(60.0, 67.5, 75.0, 82.5, 90.0)
+    )
+    tracker = narrow.coverage
+    above_crop = tracker.samples[:, 2] >= narrow.table_crop_height - tracker.epsilon
+    np.testing.assert_array_equal(tracker.observable, truth.observable & above_crop)
+    assert not (tracker.observable & ~wide.coverage.observable).any()
+    assert tracker.observable.mean() < wide.coverage.observable.mean() - 0.05
+    for env in (wide, narrow):
+        env.close()
+
+
 _NO_GL_SCRIPT = """
 import json, warnings
 from liuxing_envs.envs.view_planning import ViewPlanningEnv

@@ -76,6 +76,10 @@ DEFAULT_RESOLUTION = 64
 DEFAULT_AZIMUTH_RANGE_DEG = (-180.0, 180.0)
 DEFAULT_ELEVATION_RANGE_DEG = (20.0, 90.0)
 DEFAULT_RADIUS_RANGE = (0.30, 0.45)
+#: Coverage counts the samples some view of the env's view space sees: rings at this many
+#: elevations across ``elevation_range_deg``, at both ends of ``radius_range``, around the
+#: object's middle (see liuxing_envs.sim.objects.observable_samples).
+OBSERVATION_ELEVATION_RINGS = 5
 #: The discrete action set: every azimuth at every elevation, at one radius, plus the top view.
 DEFAULT_DISCRETE_AZIMUTHS_DEG = tuple(range(-180, 180, 45))
 #: 8 azimuths x 4 elevations + the top view = 33 candidates (the size of RL-NBV's action set);
@@ -222,8 +226,10 @@ class ViewPlanningEnv(gym.Env):
     ``info["sim_unstable"] = True`` and the next ``reset()`` starts clean.
 
     **Coverage** (the NBV metric of PC-NBV, SCONE, RL-NBV): ``coverage_samples`` points
-    sampled uniformly on the object's surface, restricted to those some view of the upper
-    hemisphere can see (nothing resting on the table, nothing occluded from every view); a
+    sampled uniformly on the object's surface, restricted to those some view of this env's
+    view space can see: rings around the object's middle at five elevations across
+    ``elevation_range_deg``, at both ends of ``radius_range``, 24 azimuths each (nothing
+    resting on the table, nothing occluded from every such view, in either action mode). A
     sample is covered when a fused point lies within ε = ``epsilon_fraction`` × the object's
     bounding-box diagonal. Which samples some view can see is ray-cast once per object and
     scale when the env is made, and kept on disk for the next process
@@ -285,7 +291,13 @@ class ViewPlanningEnv(gym.Env):
     reconstruction leave out the returns on the arm's own links (``filter_arm_points``,
     default on; before, a view showing the upper arm fused it as object: up to half the
     points of a random episode's cloud, its Chamfer distance 34 mm against 3 mm without
-    them).
+    them). Fixed within v0 (2026-11-26; coverage, its reward and ``is_success`` change): the
+    observable samples are judged from the env's own view space around the object's middle
+    (before, from a 0.4 m hemisphere around its base with a ring at 10° elevation, outside
+    the views the env can take: 10-29% of the samples of a table, stool, chair, bench,
+    C-channel or T-pipe, at some or all scales, counted although only such a view saw them,
+    which capped their coverage below the success level for every agent; and 14-24% of a
+    vase's, inside it, did not count although the env's views see them).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -345,10 +357,16 @@ class ViewPlanningEnv(gym.Env):
         self.azimuth_range = np.deg2rad(
             require_range("azimuth_range_deg", azimuth_range_deg, -360, 360)
         )
-        self.elevation_range = np.deg2rad(
-            require_range("elevation_range_deg", elevation_range_deg, 5.0, 90.0)
-        )
+        elevation_range_deg = require_range("elevation_range_deg", elevation_range_deg, 5.0, 90.0)
+        self.elevation_range = np.deg2rad(elevation_range_deg)
         self.radius_range = np.asarray(require_range("radius_range", radius_range, 0.15, 0.8))
+        self._observation_views = (
+            tuple(float(radius) for radius in self.radius_range),
+            tuple(
+                float(elevation)
+                for elevation in np.linspace(*elevation_range_deg, OBSERVATION_ELEVATION_RINGS)
+            ),
+        )
         for name, value, low, high in (
             ("epsilon_fraction", epsilon_fraction, 1e-4, 0.2),
             ("success_coverage", success_coverage, 0.0, 1.0),
@@ -447,7 +465,13 @@ class ViewPlanningEnv(gym.Env):
         for mesh in meshes:
             for scale in self.scales:
                 try:
-                    truth = observable_samples(mesh, scale, coverage_samples)
+                    truth = observable_samples(
+                        mesh,
+                        scale,
+                        coverage_samples,
+                        radii=self._observation_views[0],
+                        elevations_deg=self._observation_views[1],
+                    )
                 except ValueError as error:  # too large for the views around it
                     raise ValueError(
                         f"objects: {mesh.name!r} at scale {scale}: {error}; lower scales or "
@@ -780,6 +804,7 @@ class ViewPlanningEnv(gym.Env):
                 self.coverage_samples,
                 self.epsilon_fraction,
                 self.table_crop_height,
+                self._observation_views,
             )
             self._trackers[key] = shared.fresh()
         return self._trackers[key]
@@ -1008,15 +1033,22 @@ def _stand_in_model(mesh, scale: float, with_arm: bool) -> mujoco.MjModel:
 
 @lru_cache(maxsize=OBSERVABLE_CACHE_SIZE)
 def _shared_tracker(
-    mesh, scale: float, count: int, epsilon_fraction: float, crop_height: float
+    mesh,
+    scale: float,
+    count: int,
+    epsilon_fraction: float,
+    crop_height: float,
+    observation_views: tuple[tuple[float, ...], tuple[float, ...]],
 ) -> CoverageTracker:
     """The coverage set-up of one variant, shared by every env of a process (each scans with
     its own :meth:`CoverageTracker.fresh` copy): its lookup grid costs milliseconds and
     about a megabyte, which a vectorised env would otherwise pay per env and variant.
 
     Samples more than epsilon below ``crop_height`` (above the table) do not count: no
-    fused point can come within epsilon of them, so they would cap coverage below 1."""
-    truth = observable_samples(mesh, scale, count)
+    fused point can come within epsilon of them, so they would cap coverage below 1.
+    ``observation_views`` are the radii and elevations (deg) of the env's view space."""
+    radii, elevations_deg = observation_views
+    truth = observable_samples(mesh, scale, count, radii=radii, elevations_deg=elevations_deg)
     epsilon = epsilon_fraction * scale * mesh.diagonal
     above_crop = truth.points[:, 2] >= crop_height - epsilon
     return CoverageTracker(truth.points, epsilon, observable=truth.observable & above_crop)

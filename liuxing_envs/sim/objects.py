@@ -9,10 +9,11 @@ casts correctly; for ground-truth surface samples, samples that lie strictly ins
 part are rejected (see :func:`surface_samples`).
 
 The coverage metric of ``ViewPlanning-v0`` counts the share of ground-truth samples with an
-observed point nearby, restricted to the samples some camera could ever see:
-:func:`observable_mask` ray-casts from a dense set of viewpoints around the object (the table
-occludes), and :func:`observable_samples` caches samples, normals and that mask per
-(object, scale), because the environment asks for them at every reset.
+observed point nearby, restricted to the samples some camera of the env's view space could
+see: :func:`observable_mask` ray-casts from a dense set of viewpoints on that space (rings
+around the object's middle at the env's elevations and radii; the table occludes), and
+:func:`observable_samples` caches samples, normals and that mask per (object, scale, views),
+because the environment asks for them at every reset.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from liuxing_envs.disk_cache import cache_key, load_array, store_array
 __all__ = [
     "DEFAULT_OBSERVATION_AZIMUTH_COUNT",
     "DEFAULT_OBSERVATION_ELEVATIONS_DEG",
+    "DEFAULT_OBSERVATION_RADII",
     "DEFAULT_OBSERVATION_RADIUS",
     "DEFAULT_SAMPLE_COUNT",
     "DEFAULT_SAMPLE_SEED",
@@ -77,12 +79,17 @@ MIN_EXPOSED_FRACTION = 1e-3
 #: fragmented scan, not an assembly of parts) is sampled without it, with a warning.
 MAX_HIDING_PARTS = 64
 
-#: Viewpoints that decide observability: a hemisphere of this radius (m) around the object
-#: frame's origin, at these elevations (deg; 90 = straight down, listed once) and azimuths.
-#: 4 rings x 24 azimuths + the top = 97 views, denser than any camera the arm can place.
-DEFAULT_OBSERVATION_RADIUS = 0.4
-DEFAULT_OBSERVATION_ELEVATIONS_DEG = (10.0, 30.0, 50.0, 70.0, 90.0)
+#: Viewpoints that decide observability: spheres of these radii (m) around the object's
+#: middle (its bounding box's centre), at these elevations (deg; 90 = straight down, listed
+#: once) and azimuths: ViewPlanning-v0's view space by default (elevations 20-90 deg, radii
+#: 0.30-0.45 m; the env passes its own), 2 x (4 rings x 24 azimuths + the top) = 194 views,
+#: denser than the views an episode takes. A sample only a view outside that space could see
+#: (under a chair's seat, from near the table) would cap coverage below 1 for every agent.
+DEFAULT_OBSERVATION_RADII = (0.30, 0.45)
+DEFAULT_OBSERVATION_ELEVATIONS_DEG = (20.0, 37.5, 55.0, 72.5, 90.0)
 DEFAULT_OBSERVATION_AZIMUTH_COUNT = 24
+#: Radius (m) of :func:`default_observation_viewpoints` when none is given.
+DEFAULT_OBSERVATION_RADIUS = 0.4
 #: A ray's first hit may fall this much (m) short of its sample and still count as reaching
 #: it; far below the thinnest wall in the library (3 mm).
 DEFAULT_HIT_TOLERANCE = 1e-4
@@ -1267,14 +1274,17 @@ def observable_samples(
     count: int = DEFAULT_SAMPLE_COUNT,
     seed: int = DEFAULT_SAMPLE_SEED,
     *,
-    radius: float = DEFAULT_OBSERVATION_RADIUS,
+    radii: Sequence[float] = DEFAULT_OBSERVATION_RADII,
+    elevations_deg: Sequence[float] = DEFAULT_OBSERVATION_ELEVATIONS_DEG,
     table: bool = True,
 ) -> ObservableSamples:
     """Samples of ``mesh`` (a library name or an :class:`ObjectMesh`, given at scale 1)
-    uniformly scaled by ``scale``, their normals, and which of them the default observation
-    viewpoints at ``radius`` see (:func:`default_observation_viewpoints`,
-    :func:`observable_mask`). Cached in memory per (mesh content, scale, count, seed, radius,
-    table): the first call for a key costs a sampling and a ray cast, repeats are free.
+    uniformly scaled by ``scale``, their normals, and which of them some viewpoint on spheres
+    of ``radii`` around the scaled object's middle (its bounding box's centre), at
+    ``elevations_deg``, sees (:func:`default_observation_viewpoints`,
+    :func:`observable_mask`). Cached in memory per (mesh content, scale, count, seed, radii,
+    elevations, table), and on disk: the first call for a key costs a sampling and a ray
+    cast, repeats are free.
 
     The samples at any scale are the scale-1 samples times ``scale`` (same seed, same
     points on the surface), so samples of different scales correspond one to one.
@@ -1283,26 +1293,42 @@ def observable_samples(
         raise ValueError(f"scale must be a positive number, got {scale!r}")
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise ValueError(f"count must be a positive integer, got {count!r}")
+    radii = tuple(float(radius) for radius in radii)
+    elevations = tuple(float(elevation) for elevation in elevations_deg)
+    if not radii or not elevations:
+        raise ValueError(f"radii and elevations_deg must be non-empty, got {radii}, {elevations}")
     return _observable_samples(
-        _resolve(mesh), float(scale), int(count), int(seed), float(radius), bool(table)
+        _resolve(mesh), float(scale), int(count), int(seed), radii, elevations, bool(table)
     )
 
 
 @lru_cache(maxsize=OBSERVABLE_CACHE_SIZE)
 def _observable_samples(
-    mesh: ObjectMesh, scale: float, count: int, seed: int, radius: float, table: bool
+    mesh: ObjectMesh,
+    scale: float,
+    count: int,
+    seed: int,
+    radii: tuple[float, ...],
+    elevations_deg: tuple[float, ...],
+    table: bool,
 ) -> ObservableSamples:
-    reach = scale * float(np.linalg.norm(mesh.vertices, axis=1).max())
-    if radius <= reach:
+    scaled = mesh.scaled(scale)
+    middle = 0.5 * (scaled.vertices.min(axis=0) + scaled.vertices.max(axis=0))
+    reach = float(np.linalg.norm(scaled.vertices - middle, axis=1).max())
+    if min(radii) <= reach:
         raise ValueError(
-            f"observation radius {radius} m must exceed the scaled object's reach "
-            f"{reach:.3f} m from its origin"
+            f"observation radius {min(radii)} m must exceed the scaled object's reach "
+            f"{reach:.3f} m from its middle"
         )
     points, normals = _surface_samples(mesh, count, seed, DEFAULT_INTERIOR_TOLERANCE)
     scaled_points = points * scale
-    mask = _stored_observable_mask(
-        mesh.scaled(scale), scaled_points, normals, default_observation_viewpoints(radius), table
+    viewpoints = np.concatenate(
+        [
+            default_observation_viewpoints(radius, center=middle, elevations_deg=elevations_deg)
+            for radius in radii
+        ]
     )
+    mask = _stored_observable_mask(scaled, scaled_points, normals, viewpoints, table)
     for array in (scaled_points, mask):
         array.setflags(write=False)
     return ObservableSamples(scaled_points, normals, mask)
