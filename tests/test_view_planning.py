@@ -13,7 +13,11 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
-from liuxing_envs.envs.view_planning import DEFAULT_VIEW_BUDGET, ViewPlanningEnv
+from liuxing_envs.envs.view_planning import (
+    DEFAULT_DISCRETE_RADIUS,
+    DEFAULT_VIEW_BUDGET,
+    ViewPlanningEnv,
+)
 from liuxing_envs.perception.pointcloud import camera_rays
 from liuxing_envs.sim.viewpoints import look_at
 from tests.scripts import outcomes_without_opengl
@@ -763,8 +767,18 @@ def test_coverage_counts_what_the_envs_own_view_space_sees():
     above_crop = tracker.samples[:, 2] >= narrow.table_crop_height - tracker.epsilon
     np.testing.assert_array_equal(tracker.observable, truth.observable & above_crop)
     assert not (tracker.observable & ~wide.coverage.observable).any()
+    # The env's defaults are observable_samples' own.
+    default_truth = observable_samples("t_pipe", 1.0, 2048).observable
+    np.testing.assert_array_equal(wide.coverage.observable, default_truth & above_crop)
     assert tracker.observable.mean() < wide.coverage.observable.mean() - 0.05
-    for env in (wide, narrow):
+    # Discrete actions: the candidates' elevations at their radius, and the top view.
+    discrete = ViewPlanningEnv(**kwargs, action_mode="discrete", discrete_elevations_deg=(30, 50))
+    discrete.reset(seed=0)
+    candidates = observable_samples(
+        "t_pipe", 1.0, 2048, radii=(DEFAULT_DISCRETE_RADIUS,), elevations_deg=(30, 50, 90)
+    )
+    np.testing.assert_array_equal(discrete.coverage.observable, candidates.observable & above_crop)
+    for env in (wide, narrow, discrete):
         env.close()
 
 

@@ -585,8 +585,9 @@ class InstrumentGraspEnv(gym.Env):
             world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
 
         model, data, gripper = world.model, world.data, world.gripper
-        # The pads' peaks as Python floats: this loop runs five times a step, and numpy's
-        # per-call overhead on 2-vectors cost more than the bookkeeping's arithmetic.
+        # The pads' peaks as Python floats: this loop runs once per force sample (five times a
+        # step by default), and numpy's per-call overhead on 2-vectors cost more than the
+        # bookkeeping's arithmetic.
         peak_left = peak_right = impact_peak = 0.0
         left, right = gripper.fingertip_forces().tolist()
         divergences = divergence_count(data)

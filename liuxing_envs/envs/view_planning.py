@@ -76,9 +76,10 @@ DEFAULT_RESOLUTION = 64
 DEFAULT_AZIMUTH_RANGE_DEG = (-180.0, 180.0)
 DEFAULT_ELEVATION_RANGE_DEG = (20.0, 90.0)
 DEFAULT_RADIUS_RANGE = (0.30, 0.45)
-#: Coverage counts the samples some view of the env's view space sees: rings at this many
-#: elevations across ``elevation_range_deg``, at both ends of ``radius_range``, around the
-#: object's middle (see liuxing_envs.sim.objects.observable_samples).
+#: Coverage counts the samples some view of the env's view space sees: with continuous
+#: actions, rings at this many elevations across ``elevation_range_deg``, at both ends of
+#: ``radius_range``, around the object's middle (see observable_samples in
+#: liuxing_envs.sim.objects); with discrete ones, rings at the candidates' elevations.
 OBSERVATION_ELEVATION_RINGS = 5
 #: The discrete action set: every azimuth at every elevation, at one radius, plus the top view.
 DEFAULT_DISCRETE_AZIMUTHS_DEG = tuple(range(-180, 180, 45))
@@ -227,12 +228,14 @@ class ViewPlanningEnv(gym.Env):
 
     **Coverage** (the NBV metric of PC-NBV, SCONE, RL-NBV): ``coverage_samples`` points
     sampled uniformly on the object's surface, restricted to those some view of this env's
-    view space can see: rings around the object's middle at five elevations across
-    ``elevation_range_deg``, at both ends of ``radius_range``, 24 azimuths each (nothing
-    resting on the table, nothing occluded from every such view, in either action mode). A
+    view space can see (nothing resting on the table, nothing occluded from every such
+    view): with continuous actions, views around the object's middle at five elevations
+    across ``elevation_range_deg`` (24 azimuths each; one view at 90°) and both ends of
+    ``radius_range``; with discrete ones, views at ``discrete_radius`` at each of
+    ``discrete_elevations_deg`` (24 azimuths, for any yaw of the object) and the top view. A
     sample is covered when a fused point lies within ε = ``epsilon_fraction`` × the object's
-    bounding-box diagonal. Which samples some view can see is ray-cast once per object and
-    scale when the env is made, and kept on disk for the next process
+    bounding-box diagonal. Which samples some view can see is ray-cast once per object,
+    scale and view space when the env is made, and kept on disk for the next process
     (:mod:`liuxing_envs.disk_cache`; ``LIUXING_ENVS_CACHE=off`` turns that off).
 
     **Arguments** (all keyword): ``view_budget``, ``action_mode``, ``motion``
@@ -294,10 +297,11 @@ class ViewPlanningEnv(gym.Env):
     them). Fixed within v0 (2026-11-26; coverage, its reward and ``is_success`` change): the
     observable samples are judged from the env's own view space around the object's middle
     (before, from a 0.4 m hemisphere around its base with a ring at 10° elevation, outside
-    the views the env can take: 10-29% of the samples of a table, stool, chair, bench,
-    C-channel or T-pipe, at some or all scales, counted although only such a view saw them,
-    which capped their coverage below the success level for every agent; and 14-24% of a
-    vase's, inside it, did not count although the env's views see them).
+    the views the env can take: about 10-29% of the samples of a table, stool, chair, bench,
+    C-channel or T-pipe, at some or all scales, and 4-7% of a bowl's or an arch's, counted
+    although only such a view saw them, which capped their coverage below the success level
+    for every agent; of a vase's, 10-13% counted that no view of the env sees and 14-24%
+    did not that they see).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -360,13 +364,6 @@ class ViewPlanningEnv(gym.Env):
         elevation_range_deg = require_range("elevation_range_deg", elevation_range_deg, 5.0, 90.0)
         self.elevation_range = np.deg2rad(elevation_range_deg)
         self.radius_range = np.asarray(require_range("radius_range", radius_range, 0.15, 0.8))
-        self._observation_views = (
-            tuple(float(radius) for radius in self.radius_range),
-            tuple(
-                float(elevation)
-                for elevation in np.linspace(*elevation_range_deg, OBSERVATION_ELEVATION_RINGS)
-            ),
-        )
         for name, value, low, high in (
             ("epsilon_fraction", epsilon_fraction, 1e-4, 0.2),
             ("success_coverage", success_coverage, 0.0, 1.0),
@@ -391,6 +388,18 @@ class ViewPlanningEnv(gym.Env):
         discrete_elevations_deg = require_numbers(
             "discrete_elevations_deg", discrete_elevations_deg, 5.0, 90.0
         )
+        # The views whose sight decides which samples coverage counts: the action's own.
+        if action_mode == "continuous":
+            self._observation_views = (
+                tuple(float(radius) for radius in self.radius_range),
+                tuple(
+                    float(elevation)
+                    for elevation in np.linspace(*elevation_range_deg, OBSERVATION_ELEVATION_RINGS)
+                ),
+            )
+        else:  # the candidates' elevations (and the top view) at every azimuth: any yaw
+            elevations = (*(float(elevation) for elevation in discrete_elevations_deg), 90.0)
+            self._observation_views = ((float(discrete_radius),), elevations)
         try:
             region = np.asarray(object_region, dtype=float)
         except (TypeError, ValueError):
@@ -474,8 +483,9 @@ class ViewPlanningEnv(gym.Env):
                     )
                 except ValueError as error:  # too large for the views around it
                     raise ValueError(
-                        f"objects: {mesh.name!r} at scale {scale}: {error}; lower scales or "
-                        "drop the object"
+                        f"objects: {mesh.name!r} at scale {scale}: {error}; lower scales, keep "
+                        "the views farther out (radius_range, or discrete_radius with discrete "
+                        "actions) or drop the object"
                     ) from None
                 self._ground_truth[(mesh.name, scale)] = truth
         # One tracker per variant, in the object's frame, reset per episode: its lookup grid

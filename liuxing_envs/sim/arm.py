@@ -578,7 +578,8 @@ class Arm:
         ``solve_ik(position, rotation, site=site, seed_qpos=reference, method="analytic",
         check_collisions=False)`` returns as ``qpos`` when it succeeds. For a controller's
         per-step query: no collision check, no residuals, and no checks of the inputs, which
-        must be a finite 3-vector, a proper 3x3 rotation and finite joint angles."""
+        must be a finite 3-vector, a proper 3x3 rotation and an array of finite joint
+        angles."""
         flange_in_site = self._flange_from_site(self.site_id(site))
         if flange_in_site is None:
             raise ValueError(

@@ -1293,8 +1293,8 @@ def observable_samples(
         raise ValueError(f"scale must be a positive number, got {scale!r}")
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
         raise ValueError(f"count must be a positive integer, got {count!r}")
-    radii = tuple(float(radius) for radius in radii)
-    elevations = tuple(float(elevation) for elevation in elevations_deg)
+    radii = tuple(sorted({float(radius) for radius in radii}))  # one cache key per set
+    elevations = tuple(sorted({float(elevation) for elevation in elevations_deg}))
     if not radii or not elevations:
         raise ValueError(f"radii and elevations_deg must be non-empty, got {radii}, {elevations}")
     return _observable_samples(
