@@ -298,10 +298,10 @@ class ViewPlanningEnv(gym.Env):
     observable samples are judged from the env's own view space around the object's middle
     (before, from a 0.4 m hemisphere around its base with a ring at 10° elevation, outside
     the views the env can take: about 10-29% of the samples of a table, stool, chair, bench,
-    C-channel or T-pipe, at some or all scales, and 4-7% of a bowl's or an arch's, counted
-    although only such a view saw them, which capped their coverage below the success level
-    for every agent; of a vase's, 10-13% counted that no view of the env sees and 14-24%
-    did not that they see).
+    C-channel or T-pipe, at some or all scales, counted although only such a view saw them,
+    which capped their coverage below the success level for every agent, and 4-7% of a
+    bowl's, 4% of an arch's; of a vase's, it counted 10-13% that no view of the env sees and
+    left out 14-24% that they see).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
