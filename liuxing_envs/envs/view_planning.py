@@ -471,15 +471,12 @@ class ViewPlanningEnv(gym.Env):
         # Ground truth of every variant up front: resets stay cheap, and worker processes
         # forked from this one never call open3d (its thread pool deadlocks after a fork).
         self._ground_truth = {}
+        radii, elevations_deg = self._observation_views
         for mesh in meshes:
             for scale in self.scales:
                 try:
                     truth = observable_samples(
-                        mesh,
-                        scale,
-                        coverage_samples,
-                        radii=self._observation_views[0],
-                        elevations_deg=self._observation_views[1],
+                        mesh, scale, coverage_samples, radii=radii, elevations_deg=elevations_deg
                     )
                 except ValueError as error:  # too large for the views around it
                     raise ValueError(

@@ -498,8 +498,7 @@ class Arm:
             solutions, valid = ur_ik(self._base_inverse @ site_poses @ flange_in_site)
             ordered = self._nearest_first(solutions[valid], reference)
         else:  # a controller's target: one pose, on Python floats (see ur_ik)
-            flange_in_base = self._base_inverse @ _homogeneous(target_p, target_r) @ flange_in_site
-            ordered = self._nearest_first_of_few(solutions_of_one(flange_in_base), reference)
+            ordered = self._one_pose_nearest_first(target_p, target_r, flange_in_site, reference)
         tried, colliding = 0, None
         for q in map(np.asarray, ordered):
             tried += 1
@@ -585,9 +584,14 @@ class Arm:
             raise ValueError(
                 f"the closed-form IK needs a site fixed to the last link, not {site!r}"
             )
-        flange_in_base = self._base_inverse @ _homogeneous(position, rotation) @ flange_in_site
-        ordered = self._nearest_first_of_few(solutions_of_one(flange_in_base), reference)
+        ordered = self._one_pose_nearest_first(position, rotation, flange_in_site, reference)
         return np.array(ordered[0]) if ordered else None
+
+    def _one_pose_nearest_first(self, position, rotation, flange_in_site, reference):
+        """The closed-form solutions for one site pose, as :meth:`_nearest_first_of_few`
+        orders them."""
+        flange_in_base = self._base_inverse @ _homogeneous(position, rotation) @ flange_in_site
+        return self._nearest_first_of_few(solutions_of_one(flange_in_base), reference)
 
     def _ik_result(self, success, q, sid, target_p, target_r, roll_free, attempts, colliding):
         # The collision scene holds the same arm, so its kinematics give the same site pose;
