@@ -186,6 +186,9 @@ def test_soak_refuses_an_out_it_cannot_write_before_measuring(tmp_path):
         (("benchmarks.reconstruction_support", "--episodes", "0"), "--episodes must be"),
         (("benchmarks.reconstruction_support", "--spacings", "-1"), "--spacings must be"),
         (("benchmarks.reconstruction_support", "--seed", "-1"), "--seed must be"),
+        (("benchmarks.coverage_ceiling", "--episodes", "0"), "--episodes must be"),
+        (("benchmarks.coverage_ceiling", "--seed", "-1"), "--seed must be"),
+        (("benchmarks.coverage_ceiling", "--object-set", "x"), "invalid choice: 'x'"),
     ],
 )
 def test_baseline_benchmarks_refuse_bad_flags_before_building_envs(argv, message):
@@ -375,3 +378,15 @@ def test_reconstruction_support_trim_removes_surface_away_from_the_scan():
     assert default == trimmed  # the scan's spacing, not Poisson's finer cell, decides
     assert trimmed[1] > untrimmed[1]  # precision: the made-up surface is gone
     assert trimmed[2] > untrimmed[2] - 0.05  # recall: the scanned surface stays
+
+
+@pytest.mark.slow
+def test_coverage_ceiling_takes_every_reachable_view_of_the_episode():
+    from benchmarks.coverage_ceiling import measure
+
+    (row,) = measure("held_out", 1, seed=20_009)  # a torus: its inner wall hides from many views
+    assert row["object"] == "torus" and row["views"] == 194
+    assert 150 < row["reachable_views"] < row["views"]  # the far side is out of reach
+    # Fewer views see no more; the views around the estimate see nearly all the env counts.
+    assert row["seen_from_reachable"] <= row["seen_from_all"] and row["seen_from_all"] > 0.99
+    assert 0.9 < row["covered"] < 1.0

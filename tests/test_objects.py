@@ -7,7 +7,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from liuxing_envs.sim.camera import CameraIntrinsics
 from liuxing_envs.sim.objects import (
+    DEFAULT_OBSERVATION_RADII,
     OBJECT_NAMES,
     OBJECT_SETS,
     PROCEDURAL_SET_SIZE,
@@ -587,3 +589,45 @@ def test_a_mesh_in_many_pieces_is_sampled_with_a_warning():
     with pytest.warns(UserWarning, match="70 separate parts"):
         points, _ = surface_samples(ObjectMesh("shards", vertices, faces), 1000, 0)
     assert points.shape == (1000, 3)
+
+
+def _seen_in_image(name, scale, count, half_angle, min_depth):
+    """Per sample: whether some default observation view sees it (observable_mask) with it
+    inside the view's image cone of ``half_angle`` and beyond ``min_depth``, the camera aimed
+    at the object's middle as the env aims at its estimate of it."""
+    mesh = get_object(name).scaled(scale)
+    points, normals, _ = observable_samples(name, scale, count)
+    middle = 0.5 * (mesh.vertices.min(axis=0) + mesh.vertices.max(axis=0))
+    seen = np.zeros(len(points), dtype=bool)
+    for radius in DEFAULT_OBSERVATION_RADII:
+        for eye in default_observation_viewpoints(radius, center=middle):
+            offset = points - eye
+            depth = offset @ ((middle - eye) / np.linalg.norm(middle - eye))
+            in_image = (depth >= min_depth) & (
+                depth >= np.cos(half_angle) * np.linalg.norm(offset, axis=1)
+            )
+            ids = np.flatnonzero(in_image & ~seen)
+            if ids.size:
+                seen[ids[observable_mask(mesh, points[ids], normals[ids], [eye])]] = True
+    return seen
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", OBJECT_NAMES)
+def test_the_cameras_image_and_near_limit_hide_no_observable_sample(name):
+    """Observability ignores the camera's field of view and near limit; for the library at
+    the env's scales that loses nothing: every observable sample is inside the image (the
+    cone inscribed in its square) and beyond the near limit of some view that sees it."""
+    camera = CameraIntrinsics()
+    for scale in (0.8, 1.2):
+        observable = observable_samples(name, scale, 1024).observable
+        seen = _seen_in_image(name, scale, 1024, np.radians(camera.fovy_deg) / 2, camera.min_depth)
+        assert observable.sum() > 300
+        assert not (observable & ~seen).any(), (name, scale)
+
+
+def test_a_narrow_image_would_hide_observable_samples():
+    """The check above can fail: a 10 deg image held 0.3 m off misses much of a chair."""
+    observable = observable_samples("chair", 1.2, 1024).observable
+    seen = _seen_in_image("chair", 1.2, 1024, np.radians(5.0), 0.3)
+    assert (observable & ~seen).mean() > 0.1
