@@ -2,22 +2,24 @@
 
 Coverage counts the samples that some view of the env's view space sees, judged by ray
 casting from view positions around the object's middle, with no arm, field of view or pixel
-grid. This measures what that leaves out. Per episode, every view of the same view space
-(with continuous actions 24 azimuths at five elevations and both ends of ``radius_range``,
-194 views; with discrete ones the candidates' elevations at ``discrete_radius``) around the
-env's estimated centre is tried from home: IK, a collision-checked path, and, where both
-exist, a depth image fused into the episode's coverage. It reports:
+grid. This measures what that leaves out, for the default continuous action space. Per
+episode, every view of the same set (at both ends of ``radius_range``: 24 azimuths on each of
+four elevation rings across ``elevation_range_deg`` and the top view, 194 views in all)
+around the env's estimated centre is tried from home: IK seeded there, a collision-checked
+path, and, where both exist, a depth image fused into the episode's coverage (noise-free).
+It reports:
 
-* ``covered``: the coverage after every reachable view (the ceiling of any policy, whatever
-  its budget, up to the view grid);
+* ``covered``: the coverage after every view reachable from home (what a policy with any
+  budget can reach with these views; from another start a few more or fewer views are
+  reachable);
 * ``seen_from_reachable``: the share of the observable samples that the reachable views see
   by the same ray cast as the observable set (what the arm's reach alone costs);
-* ``seen_from_all``: the same from all 194 views around the estimated centre (what aiming at
+* ``seen_from_all``: the same from all the views around the estimated centre (what aiming at
   the estimate instead of the true middle costs).
 
 ::
 
-    MUJOCO_GL=egl python -m benchmarks.coverage_ceiling --object-set held_out --episodes 30
+    python -m benchmarks.coverage_ceiling --object-set held_out --episodes 30
 """
 
 from __future__ import annotations
@@ -68,7 +70,8 @@ def measure_episode(env, seed: int) -> dict:
             continue
         reachable[k] = True
         arm.set_qpos(plan.waypoints[-1])
-        points = crop_points(env._world_points(env._render_depth(None)), *env._crop)
+        depth = env._render_depth(None)  # measure() makes its env without depth noise
+        points = crop_points(env._world_points(depth), *env._crop)
         tracker.update(placed.to_object(points))
     mesh = env._stage.meshes[placed.name]
     radii, elevations = env._observation_views
@@ -134,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.episodes < 1:
         parser.error(f"--episodes must be at least 1, got {args.episodes}")
     if args.seed < 0:
-        parser.error(f"--seed must be non-negative, got {args.seed}")
+        parser.error(f"--seed must be >= 0, got {args.seed}")
     rows = measure(args.object_set, args.episodes, args.seed)
     print(
         f"ViewPlanning-v0 ({args.object_set}, seeds {args.seed}-{args.seed + args.episodes - 1}, "

@@ -387,6 +387,8 @@ def test_coverage_ceiling_takes_every_reachable_view_of_the_episode():
     (row,) = measure("held_out", 1, seed=20_009)  # a torus: its inner wall hides from many views
     assert row["object"] == "torus" and row["views"] == 194
     assert 150 < row["reachable_views"] < row["views"]  # the far side is out of reach
-    # Fewer views see no more; the views around the estimate see nearly all the env counts.
-    assert row["seen_from_reachable"] <= row["seen_from_all"] and row["seen_from_all"] > 0.99
+    # The torus' far side hides some of its inner wall from the reachable views; the views
+    # around the estimated centre see nearly all the env counts.
+    assert row["seen_from_reachable"] < row["seen_from_all"] - 0.005
+    assert row["seen_from_all"] > 0.99
     assert 0.9 < row["covered"] < 1.0

@@ -626,8 +626,12 @@ def test_the_cameras_image_and_near_limit_hide_no_observable_sample(name):
         assert not (observable & ~seen).any(), (name, scale)
 
 
-def test_a_narrow_image_would_hide_observable_samples():
-    """The check above can fail: a 10 deg image held 0.3 m off misses much of a chair."""
+def test_a_narrower_image_or_a_farther_near_limit_would_hide_observable_samples():
+    """The check above can fail, through either limit: a 10 deg image misses much of a chair,
+    and so does the real image with a near limit of 0.5 m."""
+    camera = CameraIntrinsics()
     observable = observable_samples("chair", 1.2, 1024).observable
-    seen = _seen_in_image("chair", 1.2, 1024, np.radians(5.0), 0.3)
-    assert (observable & ~seen).mean() > 0.1
+    narrow = _seen_in_image("chair", 1.2, 1024, np.radians(5.0), camera.min_depth)
+    assert (observable & ~narrow).mean() > 0.1
+    far = _seen_in_image("chair", 1.2, 1024, np.radians(camera.fovy_deg) / 2, 0.5)
+    assert (observable & ~far).mean() > 0.1
