@@ -6,7 +6,8 @@ grid. This measures what that leaves out, for the default continuous action spac
 episode, every view of the same set (at both ends of ``radius_range``: 24 azimuths on each of
 four elevation rings across ``elevation_range_deg`` and the top view, 194 views in all)
 around the env's estimated centre is tried from home: IK seeded there, a collision-checked
-path, and, where both exist, a depth image fused into the episode's coverage (noise-free).
+path, and, where both exist, a depth image fused into the episode's coverage (noise-free
+unless the env given to :func:`measure_episode` has depth noise).
 It reports:
 
 * ``covered``: the coverage after every view reachable from home (what a policy with any
@@ -70,7 +71,7 @@ def measure_episode(env, seed: int) -> dict:
             continue
         reachable[k] = True
         arm.set_qpos(plan.waypoints[-1])
-        depth = env._render_depth(None)  # measure() makes its env without depth noise
+        depth = env._render_depth(np.random.default_rng(0) if env._noise_enabled else None)
         points = crop_points(env._world_points(depth), *env._crop)
         tracker.update(placed.to_object(points))
     mesh = env._stage.meshes[placed.name]
