@@ -31,29 +31,15 @@ import gymnasium as gym
 import numpy as np
 
 import liuxing_envs  # noqa: F401  (registers the envs)
-from liuxing_envs.envs.view_planning import VIEW_IK_RESTARTS
-from liuxing_envs.perception.pointcloud import crop_points
 from liuxing_envs.sim.objects import (
     DEFAULT_OBSERVATION_AZIMUTH_COUNT,
     OBJECT_SETS,
-    default_observation_viewpoints,
     observable_mask,
     observable_samples,
+    observation_viewpoints,
 )
-from liuxing_envs.sim.viewpoints import look_at
 
 DEFAULT_SEED = 20_000
-
-
-def _view_positions(env) -> np.ndarray:
-    """The views that decide the env's observable set, around its estimated centre."""
-    radii, elevations = env._observation_views
-    return np.concatenate(
-        [
-            default_observation_viewpoints(radius, center=env.center, elevations_deg=elevations)
-            for radius in radii
-        ]
-    )
 
 
 def measure_episode(env, seed: int) -> dict:
@@ -61,21 +47,19 @@ def measure_episode(env, seed: int) -> dict:
     env.reset(seed=seed)
     placed, tracker, arm = env.placed, env.coverage, env.arm
     home = arm.qpos.copy()
-    eyes = _view_positions(env)
+    radii, elevations = env._observation_views
+    # The views that decide the env's observable set, around its estimated centre.
+    eyes = observation_viewpoints(radii, center=env.center, elevations_deg=elevations)
     reachable = np.zeros(len(eyes), dtype=bool)
     for k, eye in enumerate(eyes):
         arm.set_qpos(home)
-        ik = arm.solve_ik(eye, look_at(eye, env.center), roll_free=True, restarts=VIEW_IK_RESTARTS)
-        plan = arm.plan_path(ik.qpos) if ik.success else None
+        plan = env._plan_view(eye)
         if plan is None:
             continue
         reachable[k] = True
         arm.set_qpos(plan.waypoints[-1])
-        depth = env._render_depth(np.random.default_rng(0) if env._noise_enabled else None)
-        points = crop_points(env._world_points(depth), *env._crop)
-        tracker.update(placed.to_object(points))
+        tracker.update(placed.to_object(env._preview_points()))
     mesh = env._stage.meshes[placed.name]
-    radii, elevations = env._observation_views
     samples = observable_samples(
         mesh, placed.scale, env.coverage_samples, radii=radii, elevations_deg=elevations
     )

@@ -9,6 +9,7 @@ import pytest
 
 from liuxing_envs.sim.camera import CameraIntrinsics
 from liuxing_envs.sim.objects import (
+    DEFAULT_OBSERVATION_ELEVATIONS_DEG,
     DEFAULT_OBSERVATION_RADII,
     OBJECT_NAMES,
     OBJECT_SETS,
@@ -22,6 +23,7 @@ from liuxing_envs.sim.objects import (
     load_mesh_file,
     observable_mask,
     observable_samples,
+    observation_viewpoints,
     surface_samples,
 )
 
@@ -597,18 +599,22 @@ def _seen_in_image(name, scale, count, half_angle, min_depth):
     at the object's middle as the env aims at its estimate of it."""
     mesh = get_object(name).scaled(scale)
     points, normals, _ = observable_samples(name, scale, count)
-    middle = 0.5 * (mesh.vertices.min(axis=0) + mesh.vertices.max(axis=0))
+    middle = mesh.middle
     seen = np.zeros(len(points), dtype=bool)
-    for radius in DEFAULT_OBSERVATION_RADII:
-        for eye in default_observation_viewpoints(radius, center=middle):
-            offset = points - eye
-            depth = offset @ ((middle - eye) / np.linalg.norm(middle - eye))
-            in_image = (depth >= min_depth) & (
-                depth >= np.cos(half_angle) * np.linalg.norm(offset, axis=1)
-            )
-            ids = np.flatnonzero(in_image & ~seen)
-            if ids.size:
-                seen[ids[observable_mask(mesh, points[ids], normals[ids], [eye])]] = True
+    eyes = observation_viewpoints(
+        DEFAULT_OBSERVATION_RADII,
+        center=middle,
+        elevations_deg=DEFAULT_OBSERVATION_ELEVATIONS_DEG,
+    )
+    for eye in eyes:
+        offset = points - eye
+        depth = offset @ ((middle - eye) / np.linalg.norm(middle - eye))
+        in_image = (depth >= min_depth) & (
+            depth >= np.cos(half_angle) * np.linalg.norm(offset, axis=1)
+        )
+        ids = np.flatnonzero(in_image & ~seen)
+        if ids.size:
+            seen[ids[observable_mask(mesh, points[ids], normals[ids], [eye])]] = True
     return seen
 
 

@@ -610,10 +610,7 @@ class ViewPlanningEnv(gym.Env):
         if not self._episode_ready:
             raise RuntimeError("call reset() before step(), and again after an episode ends")
         azimuth, elevation, radius = self._view_from_action(action)
-        eye = sphere_point(self.center, azimuth, elevation, radius)
-        rotation = look_at(eye, self.center)
-        ik = self.arm.solve_ik(eye, rotation, roll_free=True, restarts=VIEW_IK_RESTARTS)
-        plan = self.arm.plan_path(ik.qpos) if ik.success else None
+        plan = self._plan_view(sphere_point(self.center, azimuth, elevation, radius))
         gain, path_length, reached, unstable = 0.0, 0.0, False, False
         if plan is not None:
             motion = self.arm.follow(plan, self.motion)
@@ -753,11 +750,7 @@ class ViewPlanningEnv(gym.Env):
         there. For oracles and analysis, never for a policy's observations."""
         if not self._episode_ready:
             raise RuntimeError("call reset() before preview_view()")
-        eye = sphere_point(self.center, azimuth, elevation, radius)
-        ik = self.arm.solve_ik(
-            eye, look_at(eye, self.center), roll_free=True, restarts=VIEW_IK_RESTARTS
-        )
-        plan = self.arm.plan_path(ik.qpos) if ik.success else None
+        plan = self._plan_view(sphere_point(self.center, azimuth, elevation, radius))
         if plan is None:
             return {
                 "reachable": False,
@@ -771,16 +764,27 @@ class ViewPlanningEnv(gym.Env):
             self._preview_saved = mujoco.MjData(self.model)
         mujoco.mj_copyData(self._preview_saved, self.model, self.data)
         self.arm.set_qpos(plan.waypoints[-1])
-        # Its own generator, so previews leave the episode's noise stream untouched.
-        rng = np.random.default_rng(0) if self._noise_enabled else None
-        depth = self._render_depth(rng)
-        points = crop_points(self._world_points(depth), *self._crop)
+        points = self._preview_points()
         mujoco.mj_copyData(self.data, self.model, self._preview_saved)
         gain = self.coverage.preview(self.placed.to_object(points))
         reward = self.coverage_reward_scale * gain - self.motion_cost * plan.length
         return {"reachable": True, "gain": gain, "path_length": plan.length, "reward": reward}
 
     # ------------------------------------------------------------------ internals
+    def _plan_view(self, eye: np.ndarray):
+        """The arm's path to the camera at ``eye`` looking at the centre (any roll), or None
+        when no IK solution or no collision-free path reaches it."""
+        ik = self.arm.solve_ik(
+            eye, look_at(eye, self.center), roll_free=True, restarts=VIEW_IK_RESTARTS
+        )
+        return self.arm.plan_path(ik.qpos) if ik.success else None
+
+    def _preview_points(self) -> np.ndarray:
+        """The cropped world points of a depth image at the live state, not fused; noise, if
+        any, from a generator of its own, so the episode's noise stream is left untouched."""
+        rng = np.random.default_rng(0) if self._noise_enabled else None
+        return crop_points(self._world_points(self._render_depth(rng)), *self._crop)
+
     def _check_position(self, position_xy: np.ndarray, name: str | None, scale: float | None):
         """Refuses a reset ``position`` that puts an object partly outside the workspace. Every
         object and scale the reset may draw must fit there, so that whether a position is

@@ -57,6 +57,7 @@ __all__ = [
     "load_mesh_file",
     "observable_mask",
     "observable_samples",
+    "observation_viewpoints",
     "surface_samples",
 ]
 
@@ -190,6 +191,11 @@ class ObjectMesh:
     def extents(self) -> np.ndarray:
         """Bounding-box side lengths (x, y, z)."""
         return np.ptp(self.vertices, axis=0)
+
+    @property
+    def middle(self) -> np.ndarray:
+        """Bounding-box centre: where the observation views are centred."""
+        return 0.5 * (self.vertices.min(axis=0) + self.vertices.max(axis=0))
 
     @property
     def diagonal(self) -> float:
@@ -1197,6 +1203,18 @@ def default_observation_viewpoints(
     return np.asarray(center, dtype=float) + radius * directions
 
 
+def observation_viewpoints(
+    radii: Sequence[float], *, center: Sequence[float], elevations_deg: Sequence[float]
+) -> np.ndarray:
+    """:func:`default_observation_viewpoints` on each sphere of ``radii``, concatenated."""
+    return np.concatenate(
+        [
+            default_observation_viewpoints(radius, center=center, elevations_deg=elevations_deg)
+            for radius in radii
+        ]
+    )
+
+
 def _table_box(half_size: float, thickness: float) -> Part:
     return _box((2 * half_size, 2 * half_size, thickness), (0.0, 0.0, -thickness / 2))
 
@@ -1313,7 +1331,7 @@ def _observable_samples(
     table: bool,
 ) -> ObservableSamples:
     scaled = mesh.scaled(scale)
-    middle = 0.5 * (scaled.vertices.min(axis=0) + scaled.vertices.max(axis=0))
+    middle = scaled.middle
     reach = float(np.linalg.norm(scaled.vertices - middle, axis=1).max())
     if min(radii) <= reach:
         raise ValueError(
@@ -1322,12 +1340,7 @@ def _observable_samples(
         )
     points, normals = _surface_samples(mesh, count, seed, DEFAULT_INTERIOR_TOLERANCE)
     scaled_points = points * scale
-    viewpoints = np.concatenate(
-        [
-            default_observation_viewpoints(radius, center=middle, elevations_deg=elevations_deg)
-            for radius in radii
-        ]
-    )
+    viewpoints = observation_viewpoints(radii, center=middle, elevations_deg=elevations_deg)
     mask = _stored_observable_mask(scaled, scaled_points, normals, viewpoints, table)
     for array in (scaled_points, mask):
         array.setflags(write=False)
