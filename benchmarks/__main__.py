@@ -175,6 +175,16 @@ def run(
     else:
         stamp = {"date": current["date"], "commit": current["commit"], "command": command}
         results = _keep(earlier, sections, stamp)
+    # Sections started but not finished: a report saved mid-run, or left by a run that
+    # failed, says which of its tables are missing or partial.
+    unfinished = set(sections) | set(results.get("unfinished", ()))
+    results["unfinished"] = [section for section in SECTIONS if section in unfinished]
+
+    def finished(section: str) -> None:
+        if section in sections:
+            results["unfinished"].remove(section)
+            on_progress(results)
+
     if "throughput" in sections:
         results["throughput"] = []
         for config in throughput.CONFIGS:
@@ -184,6 +194,7 @@ def run(
                 {"env_id": config.env_id, "mode": config.label, **measured}
             )
             on_progress(results)
+    finished("throughput")
     if "split" in sections:
         results["split"] = []
         for config in time_split.SPLIT_CONFIGS:
@@ -192,6 +203,7 @@ def run(
             measured = time_split.measure(config, steps)
             results["split"].append({"env_id": config.env_id, "mode": config.label, **measured})
             on_progress(results)
+    finished("split")
     if "physics" in sections:
         results["physics"] = []
         dynamic = Config(VIEW_PLANNING, {**VIEW_DEFAULT.kwargs, "motion": "dynamic"})
@@ -200,6 +212,7 @@ def run(
             measured = physics.measure(config, max(20, int(steps * scale)), repeats)
             results["physics"].append({"env_id": config.env_id, "mode": config.label, **measured})
             on_progress(results)
+    finished("physics")
     if "peers" in sections:
         if peers.available():
             results["peers"] = {}
@@ -210,6 +223,7 @@ def run(
                 on_progress(results)
         else:
             results["peers"] = None
+    finished("peers")
     if "scaling" in sections:
         results["scaling"] = []
         workers = (1, 2) if quick else scaling.WORKERS
@@ -239,6 +253,7 @@ def run(
                     }
                 )
             on_progress(results)
+    finished("scaling")
     if "training" in sections:
         results["training"] = {"throughput": []}
         for env_id, algo, steps in training.RUNS:
@@ -250,7 +265,7 @@ def run(
         results["training"]["time_to_beat"] = training.time_to_beat_four_view(
             512 if quick else None
         )
-    on_progress(results)  # also when a section measured nothing (peers skipped)
+    finished("training")
     return results
 
 
@@ -355,6 +370,15 @@ def report(results: dict, command: str) -> str:
     """RESULTS.md: the machine, the command, the targets, then every table."""
     m = results["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in m["versions"].items())
+    unfinished = results.get("unfinished")
+    incomplete = (
+        [
+            f"**Incomplete: the run stopped before it finished {', '.join(unfinished)}; their"
+            " tables are missing or partial.**"
+        ]
+        if unfinished
+        else []
+    )
     lines = [
         "# Benchmark results",
         "",
@@ -365,6 +389,7 @@ def report(results: dict, command: str) -> str:
             f" {again['commit']}): {section}."
             for section, again in results.get("remeasured", {}).items()
         ),
+        *incomplete,
         ""
         if not results["quick"]
         else "**Quick run: a smoke test of the benchmark, not a measurement.**\n",
