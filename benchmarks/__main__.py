@@ -373,8 +373,9 @@ def report(results: dict, command: str) -> str:
     unfinished = results.get("unfinished")
     incomplete = (
         [
-            f"**Incomplete: the run stopped before it finished {', '.join(unfinished)}; their"
-            " tables are missing or partial.**"
+            "",
+            f"**Incomplete: saved before {', '.join(unfinished)} finished (a run still going,"
+            " or one that failed or was stopped); those tables are missing or partial.**",
         ]
         if unfinished
         else []
