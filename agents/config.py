@@ -177,12 +177,37 @@ HYPERPARAM_RANGES = {
 SET_BY_FLAGS = {"seed": "--seed", "device": "--device", "tensorboard_log": "--tensorboard"}
 
 
+#: Hyper-parameters SB3 also takes as a schedule of the training progress; here written as
+#: rl-baselines3-zoo does, ``lin_<start>``: ``start`` decaying linearly to 0 over the run.
+SCHEDULED = ("learning_rate", "clip_range")
+LINEAR_PREFIX = "lin_"
+
+
+def linear_schedule_start(key: str, value: str) -> float:
+    """The start of ``lin_<start>``, or a ConfigError naming the accepted forms."""
+    text = value[len(LINEAR_PREFIX) :] if value.startswith(LINEAR_PREFIX) else None
+    try:
+        start = float(text) if text is not None else None
+    except ValueError:
+        start = None
+    if start is None or not np.isfinite(start) or start <= 0:
+        raise ConfigError(
+            f"{key} must be a positive number or {LINEAR_PREFIX}<positive number> (a linear "
+            f"decay to 0 over the run, e.g. {LINEAR_PREFIX}3.0e-4), got {value!r}"
+        )
+    return start
+
+
 def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
     """A value of the kind the algorithm's own default has, so ``gamma=abc`` fails here with
     its name instead of as a tensor error minutes into training. Only scalars are checked:
     a list is one of SB3's tuple forms (``train_freq: [1, episode]``). A None default leaves
-    the kind open, except for the numbers that default to off (``target_kl``)."""
+    the kind open, except for the numbers that default to off (``target_kl``). The keys in
+    :data:`SCHEDULED` also take ``lin_<start>``."""
     if isinstance(value, (list, tuple, dict)) or (value is None and default is None):
+        return
+    if key in SCHEDULED and isinstance(value, str):
+        linear_schedule_start(key, value)
         return
     if default is None:
         if key not in OPTIONAL_NUMBERS:

@@ -30,6 +30,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 import liuxing_envs
@@ -37,11 +38,13 @@ from agents import interrupts, run_folder
 from agents.config import (
     ALGOS,
     MAX_SEED,
+    SCHEDULED,
     ConfigError,
     closest,
     deep_update,
     default_hyperparams,
     int_at_least,
+    linear_schedule_start,
     require_known,
     split_hyperparams,
 )
@@ -306,6 +309,11 @@ def algorithm_kwargs(hyperparams: Mapping) -> dict:
         kwargs["policy_kwargs"] = policy_kwargs(kwargs["policy_kwargs"])
     if isinstance(kwargs.get("train_freq"), list):  # YAML has no tuples; SB3 wants (n, unit)
         kwargs["train_freq"] = tuple(kwargs["train_freq"])
+    for key in SCHEDULED:
+        if isinstance(kwargs.get(key), str):
+            # SB3's progress runs from 1 to 0 over the run's total steps, also when resumed.
+            start = linear_schedule_start(key, kwargs[key])
+            kwargs[key] = LinearSchedule(start, 0.0, end_fraction=1.0)
     return kwargs
 
 
