@@ -115,6 +115,12 @@ def test_a_python_expression_stays_a_string():
         (["--hyperparams", "target_kl=abc"], "target_kl must be a number, got 'abc'"),
         (["--hyperparams", "gamma=2"], "PPO hyper-parameter gamma must be in [0.0, 1.0], got 2"),
         (["--hyperparams", "clip_range=-0.2"], "clip_range must be in [0.0, inf], got -0.2"),
+        (
+            ["--hyperparams", "learning_rate=lin_fast"],
+            "learning_rate must be a positive number or lin_<positive number>",
+        ),
+        (["--hyperparams", "clip_range=lin_-0.2"], "got 'lin_-0.2'"),
+        (["--hyperparams", "learning_rate=fast"], "(a linear decay to 0 over the run"),
         (["--hyperparams", "env_kwargs=5"], "env_kwargs must be a mapping of env kwargs"),
         (["--hyperparams", "normalize=maybe"], "normalize must be true or false, got 'maybe'"),
         (["--hyperparams", "seed=3"], "seed is not a hyper-parameter here: set it with --seed"),
@@ -457,6 +463,28 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
     assert final.replay_buffer.size() == 256  # the first 128 transitions were kept
     timesteps = [row["timesteps"] for row in run_folder.read_evaluations(run_dir)]
     assert timesteps == sorted(timesteps) and timesteps[-1] == 256 and len(timesteps) >= 3
+
+
+@pytest.mark.slow
+def test_a_linear_learning_rate_decays_to_zero_over_the_run_and_its_resumption(tmp_path):
+    run_dir = tmp_path / "run"
+    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 128)
+    run_train(*args, "learning_rate=lin_1e-3", "clip_range=lin_0.2", "--final-episodes", "0")
+    config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
+    assert config["hyperparams"]["learning_rate"] == "lin_1e-3"  # as given, to reproduce
+    model = PPO.load(run_dir / run_folder.FINAL_MODEL)
+    assert model.lr_schedule(1.0) == pytest.approx(1e-3)
+    assert model.lr_schedule(0.25) == pytest.approx(2.5e-4)
+    assert model.clip_range(0.5) == pytest.approx(0.1)
+    # The last update (at 128 of 128 steps) ran at the end of the decay; a constant rate
+    # would have left 1e-3 in the optimiser.
+    assert model.policy.optimizer.param_groups[0]["lr"] == 0.0
+
+    run_train("--resume", str(run_dir), "-n", "256", "--final-episodes", "0", "--no-progress-bar")
+    resumed = PPO.load(run_dir / run_folder.FINAL_MODEL)
+    assert resumed.num_timesteps == 256
+    assert resumed.lr_schedule(0.5) == pytest.approx(5e-4)
+    assert resumed.policy.optimizer.param_groups[0]["lr"] == 0.0
 
 
 @pytest.mark.slow
