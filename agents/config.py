@@ -183,7 +183,7 @@ SCHEDULED = ("learning_rate", "clip_range")
 LINEAR_PREFIX = "lin_"
 
 
-def linear_schedule_start(key: str, value: str) -> float:
+def linear_schedule_start(key: str, value: str, algo_name: str = "the algorithm's") -> float:
     """The start of ``lin_<start>``, or a ConfigError naming the accepted forms."""
     text = value[len(LINEAR_PREFIX) :] if value.startswith(LINEAR_PREFIX) else None
     try:
@@ -192,8 +192,9 @@ def linear_schedule_start(key: str, value: str) -> float:
         start = None
     if start is None or not np.isfinite(start) or start <= 0:
         raise ConfigError(
-            f"{key} must be a positive number or {LINEAR_PREFIX}<positive number> (a linear "
-            f"decay to 0 over the run, e.g. {LINEAR_PREFIX}3.0e-4), got {value!r}"
+            f"{algo_name} hyper-parameter {key} must be a number >= 0 or "
+            f"{LINEAR_PREFIX}<number > 0> (a linear decay to 0 over the run, e.g. "
+            f"{LINEAR_PREFIX}3.0e-4; a number in quotes is text), got {value!r}"
         )
     return start
 
@@ -207,7 +208,7 @@ def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
     if isinstance(value, (list, tuple, dict)) or (value is None and default is None):
         return
     if key in SCHEDULED and isinstance(value, str):
-        linear_schedule_start(key, value)
+        linear_schedule_start(key, value, algo_name)
         return
     if default is None:
         if key not in OPTIONAL_NUMBERS:

@@ -117,10 +117,14 @@ def test_a_python_expression_stays_a_string():
         (["--hyperparams", "clip_range=-0.2"], "clip_range must be in [0.0, inf], got -0.2"),
         (
             ["--hyperparams", "learning_rate=lin_fast"],
-            "learning_rate must be a positive number or lin_<positive number>",
+            "PPO hyper-parameter learning_rate must be a number >= 0 or lin_<number > 0>",
         ),
         (["--hyperparams", "clip_range=lin_-0.2"], "got 'lin_-0.2'"),
         (["--hyperparams", "learning_rate=fast"], "(a linear decay to 0 over the run"),
+        (
+            ["--algo", "sac", "--hyperparams", "learning_rate=lin_0"],
+            "SAC hyper-parameter learning_rate must be a number >= 0 or lin_<number > 0>",
+        ),
         (["--hyperparams", "env_kwargs=5"], "env_kwargs must be a mapping of env kwargs"),
         (["--hyperparams", "normalize=maybe"], "normalize must be true or false, got 'maybe'"),
         (["--hyperparams", "seed=3"], "seed is not a hyper-parameter here: set it with --seed"),
@@ -468,7 +472,7 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
 @pytest.mark.slow
 def test_a_linear_learning_rate_decays_to_zero_over_the_run_and_its_resumption(tmp_path):
     run_dir = tmp_path / "run"
-    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 128)
+    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 192)
     run_train(*args, "learning_rate=lin_1e-3", "clip_range=lin_0.2", "--final-episodes", "0")
     config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
     assert config["hyperparams"]["learning_rate"] == "lin_1e-3"  # as given, to reproduce
@@ -476,15 +480,24 @@ def test_a_linear_learning_rate_decays_to_zero_over_the_run_and_its_resumption(t
     assert model.lr_schedule(1.0) == pytest.approx(1e-3)
     assert model.lr_schedule(0.25) == pytest.approx(2.5e-4)
     assert model.clip_range(0.5) == pytest.approx(0.1)
-    # The last update (at 128 of 128 steps) ran at the end of the decay; a constant rate
-    # would have left 1e-3 in the optimiser.
+    # An update follows each 64-step rollout, at the rate of the steps done: 1e-3 * (1 - 128/192)
+    # at 128 (the checkpoint holds it). The last one ran at the end of the decay; a constant
+    # rate would have left 1e-3.
+    assert learning_rate_at(run_dir, 128) == pytest.approx(1e-3 * (1 - 128 / 192))
     assert model.policy.optimizer.param_groups[0]["lr"] == 0.0
 
-    run_train("--resume", str(run_dir), "-n", "256", "--final-episodes", "0", "--no-progress-bar")
+    run_train("--resume", str(run_dir), "-n", "384", "--final-episodes", "0", "--no-progress-bar")
     resumed = PPO.load(run_dir / run_folder.FINAL_MODEL)
-    assert resumed.num_timesteps == 256
-    assert resumed.lr_schedule(0.5) == pytest.approx(5e-4)
+    assert resumed.num_timesteps == 384
+    # The resumed updates follow the new total, back up from 0: at 320, 1e-3 * (1 - 320/384).
+    assert learning_rate_at(run_dir, 320) == pytest.approx(1e-3 * (1 - 320 / 384))
     assert resumed.policy.optimizer.param_groups[0]["lr"] == 0.0
+
+
+def learning_rate_at(run_dir: Path, steps: int) -> float:
+    """The optimiser's learning rate in the checkpoint of ``steps``."""
+    model = PPO.load(run_folder.checkpoint_paths(run_dir, steps)["model"])
+    return model.policy.optimizer.param_groups[0]["lr"]
 
 
 @pytest.mark.slow
