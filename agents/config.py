@@ -185,12 +185,13 @@ LINEAR_PREFIX = "lin_"
 
 def linear_schedule_start(key: str, value: str, algo_name: str = "the algorithm's") -> float:
     """The start of ``lin_<start>``, or a ConfigError naming the accepted forms."""
-    text = value[len(LINEAR_PREFIX) :] if value.startswith(LINEAR_PREFIX) else None
-    try:
-        start = float(text) if text is not None else None
-    except ValueError:
-        start = None
-    if start is None or not np.isfinite(start) or start <= 0:
+    start = np.nan
+    if value.startswith(LINEAR_PREFIX):
+        try:
+            start = float(value[len(LINEAR_PREFIX) :])
+        except ValueError:
+            pass
+    if not (np.isfinite(start) and start > 0):
         raise ConfigError(
             f"{algo_name} hyper-parameter {key} must be a number >= 0 or "
             f"{LINEAR_PREFIX}<number > 0> (a linear decay to 0 over the run, e.g. "

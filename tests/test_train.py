@@ -483,21 +483,24 @@ def test_a_linear_learning_rate_decays_to_zero_over_the_run_and_its_resumption(t
     # An update follows each 64-step rollout, at the rate of the steps done: 1e-3 * (1 - 128/192)
     # at 128 (the checkpoint holds it). The last one ran at the end of the decay; a constant
     # rate would have left 1e-3.
-    assert learning_rate_at(run_dir, 128) == pytest.approx(1e-3 * (1 - 128 / 192))
-    assert model.policy.optimizer.param_groups[0]["lr"] == 0.0
+    assert trained_rate(checkpoint(run_dir, 128)) == pytest.approx(1e-3 * (1 - 128 / 192))
+    assert trained_rate(run_dir / run_folder.FINAL_MODEL) == 0.0
 
     run_train("--resume", str(run_dir), "-n", "384", "--final-episodes", "0", "--no-progress-bar")
     resumed = PPO.load(run_dir / run_folder.FINAL_MODEL)
     assert resumed.num_timesteps == 384
     # The resumed updates follow the new total, back up from 0: at 320, 1e-3 * (1 - 320/384).
-    assert learning_rate_at(run_dir, 320) == pytest.approx(1e-3 * (1 - 320 / 384))
-    assert resumed.policy.optimizer.param_groups[0]["lr"] == 0.0
+    assert trained_rate(checkpoint(run_dir, 320)) == pytest.approx(1e-3 * (1 - 320 / 384))
+    assert trained_rate(run_dir / run_folder.FINAL_MODEL) == 0.0
 
 
-def learning_rate_at(run_dir: Path, steps: int) -> float:
-    """The optimiser's learning rate in the checkpoint of ``steps``."""
-    model = PPO.load(run_folder.checkpoint_paths(run_dir, steps)["model"])
-    return model.policy.optimizer.param_groups[0]["lr"]
+def checkpoint(run_dir: Path, steps: int) -> Path:
+    return run_folder.checkpoint_paths(run_dir, steps)["model"]
+
+
+def trained_rate(model_path: Path) -> float:
+    """The learning rate in a saved PPO model's optimiser: that of its last update."""
+    return PPO.load(model_path).policy.optimizer.param_groups[0]["lr"]
 
 
 @pytest.mark.slow
