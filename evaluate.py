@@ -14,8 +14,9 @@ vecnormalize.pkl beside it or --raw-observations) or baseline names:
 ViewPlanning-v0: four-view, uniform, random, greedy-oracle (privileged: it reads the ground
 truth); InstrumentGrasp-v0: scripted-grasp, squeeze, random, privileged-grasp (the script
 reading the handle from the simulator). Several run folders of one algorithm with the same
-env kwargs are aggregated as training seeds (IQM and mean, each with a bootstrap interval
-over seeds and rliable's stratified one; probability of improvement over the baseline).
+env kwargs and training settings are aggregated as training seeds (IQM and mean, each with
+a bootstrap interval over seeds and rliable's stratified one; probability of improvement
+over the baseline).
 Episodes are the held-out objects / instruments unless --object-set / --instrument-set say
 otherwise.
 """
@@ -71,7 +72,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=INSTRUMENT_SPLITS,
         help="InstrumentGrasp-v0's split (default: held_out)",
     )
-    episodes.add_argument("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="gym.make kwargs")
+    episodes.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        action="extend",
+        metavar="KEY=VALUE",
+        help="gym.make kwargs (may be repeated)",
+    )
     episodes.add_argument(
         "--deterministic",
         action=argparse.BooleanOptionalAction,

@@ -29,8 +29,8 @@ from agents.run_folder import RunFolderError  # noqa: E402
 #: Flags that define a run; a resumed run keeps the values in its config.yml.
 RUN_DEFINING_FLAGS = (
     "env", "algo", "seed", "n_envs", "vec_env", "config", "hyperparams", "env_kwargs",
-    "eval_freq", "eval_episodes", "save_freq", "run_dir", "tensorboard", "init_from",
-    "init_replay_buffer",
+    "eval_freq", "eval_episodes", "save_freq", "run_dir", "log_folder", "tensorboard",
+    "init_from", "init_replay_buffer",
 )  # fmt: skip
 
 
@@ -44,10 +44,22 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--n-envs", type=int, help="parallel training envs (default: from YAML)")
     run.add_argument("--vec-env", help="dummy (one process) or subproc (default: dummy)")
     run.add_argument("--config", metavar="FILE", help="hyper-parameter YAML to use instead")
+    # "extend": a flag given twice adds its items to the first's (argparse's default keeps
+    # only the last group, silently dropping the rest).
     run.add_argument(
-        "--hyperparams", nargs="+", metavar="KEY=VALUE", help="override hyper-parameters"
+        "--hyperparams",
+        nargs="+",
+        action="extend",
+        metavar="KEY=VALUE",
+        help="override hyper-parameters (may be repeated)",
     )
-    run.add_argument("--env-kwargs", nargs="+", metavar="KEY=VALUE", help="gym.make kwargs")
+    run.add_argument(
+        "--env-kwargs",
+        nargs="+",
+        action="extend",
+        metavar="KEY=VALUE",
+        help="gym.make kwargs (may be repeated)",
+    )
     run.add_argument(
         "--init-from",
         metavar="RUN_DIR",
@@ -73,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     logs.add_argument(
         "--run-dir", help="the run's folder (default: LOG_FOLDER/ENV/ALGO_seedS_TIME)"
     )
-    logs.add_argument("-f", "--log-folder", default="runs", help="parent of new run folders")
+    logs.add_argument("-f", "--log-folder", help="parent of new run folders (default: runs)")
     logs.add_argument("--tensorboard", action="store_true", default=None, help="TensorBoard logs")
     logs.add_argument(
         "--progress-bar",
@@ -135,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
                 init_replay_buffer=args.init_replay_buffer,
             )
         )
-        run_dir = args.run_dir or training.new_run_dir(config, args.log_folder)
+        run_dir = args.run_dir or training.new_run_dir(config, args.log_folder or "runs")
         print(f"run folder: {run_dir}", flush=True)
         training.train(config, run_dir, progress_bar=args.progress_bar)
     except (ConfigError, RunFolderError) as error:

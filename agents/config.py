@@ -127,6 +127,7 @@ def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
     build nested mappings so ``policy_kwargs.net_arch=[64,64]`` overrides one entry.
     """
     result: dict = {}
+    given: list[tuple[str, ...]] = []
     for item in items or ():
         key, sep, text = item.partition("=")
         key = key.strip()
@@ -139,11 +140,17 @@ def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
         parts = key.split(".")
         if not all(_NAME.fullmatch(part) for part in parts):
             raise ConfigError(f"{flag} expects key=value items with names as keys, got {item!r}")
+        path = tuple(parts)
+        for earlier in given:
+            # The same key twice, or a mapping and one of its entries: which one wins would
+            # depend on the order, so neither does.
+            if earlier[: len(path)] == path or path[: len(earlier)] == earlier:
+                twice = "given twice" if earlier == path else f"given with {'.'.join(earlier)}"
+                raise ConfigError(f"{flag} {key}: {twice}; give each setting once")
+        given.append(path)
         target = result
         for part in parts[:-1]:
             target = target.setdefault(part, {})
-            if not isinstance(target, dict):
-                raise ConfigError(f"{flag} {key}: {part!r} is set both as a value and a mapping")
         target[parts[-1]] = value
     return result
 
@@ -233,6 +240,36 @@ def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
             raise ConfigError(
                 f"{algo_name} hyper-parameter {key} must be in [{low}, {high}], got {value!r}"
             )
+
+
+#: The critic's key in a ``net_arch`` mapping, per algorithm (the actor's is ``pi``).
+NET_ARCH_CRITIC = {"ppo": "vf", "sac": "qf"}
+
+
+def check_net_arch(algo: str, net_arch) -> None:
+    """``policy_kwargs.net_arch``: a list of hidden-layer widths (positive integers) for actor
+    and critic alike, or a mapping of exactly ``pi`` and the critic's key to such lists. SB3
+    gives a network missing from the mapping no hidden layer, silently, and a zero-width
+    layer makes a constant network."""
+    critic = NET_ARCH_CRITIC[algo]
+    forms = (
+        f"a list of layer widths ([256, 256]) or a mapping of exactly pi and {critic} to such "
+        f"lists ({{pi: [64], {critic}: [256]}})"
+    )
+
+    def widths(value) -> bool:
+        return isinstance(value, list | tuple) and all(
+            isinstance(width, int) and not isinstance(width, bool) and width >= 1 for width in value
+        )
+
+    if isinstance(net_arch, Mapping):
+        ok = set(net_arch) == {"pi", critic} and all(map(widths, net_arch.values()))
+    else:
+        ok = widths(net_arch)
+    if not ok:
+        raise ConfigError(
+            f"{algo.upper()} policy_kwargs.net_arch must be {forms}, got {net_arch!r}"
+        )
 
 
 def deep_update(base: Mapping, overrides: Mapping) -> dict:

@@ -367,6 +367,11 @@ def build_contestants(
                 f"the {split.replace('_', ' ')} is chosen with {task.split_flag}, "
                 f"not --env-kwargs {split}=..."
             )
+        if task.explicit_scene_kwarg in env_kwargs and current in splits:
+            raise ContestantError(
+                f"{task.split_flag} and --env-kwargs {task.explicit_scene_kwarg}=... both "
+                f"choose {current}'s episodes; give one of them"
+            )
     for contestant in contestants:
         task = task_for(contestant.env_id)
         # What it was trained on is not what it is scored on (the split decides, below).

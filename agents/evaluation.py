@@ -18,6 +18,7 @@ import numpy as np
 from agents import run_folder
 from agents.config import ConfigError
 from agents.grasp_baselines import ScriptedGrasp
+from agents.spaces import describe_space, same_space
 from agents.statistics import bootstrap_ci, interval_text, wilson_interval
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle
 
@@ -94,16 +95,23 @@ def task_for(env_id: str) -> Task:
     return TASKS[env_id]
 
 
+#: The env kwarg that sets an env's episode length, which its registered time limit must
+#: follow: ViewPlanning-v0's view budget, InstrumentGrasp-v0's horizon of the success bonus.
+EPISODE_LENGTH_KWARGS = {"ViewPlanning-v0": "view_budget", "InstrumentGrasp-v0": "episode_steps"}
+
+
 def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
-    """``gym.make`` with the run's env kwargs. ViewPlanning-v0's registered time limit is the
-    default view budget, so a changed ``view_budget`` moves the limit with it."""
+    """``gym.make`` with the run's env kwargs. Each env's registered time limit is its default
+    episode length, so a changed ``view_budget`` (ViewPlanning-v0) or ``episode_steps``
+    (InstrumentGrasp-v0) moves the limit with it."""
     import gymnasium as gym
 
     import liuxing_envs  # noqa: F401  (registers the ids)
 
     env_kwargs = dict(env_kwargs or {})
-    if env_id == "ViewPlanning-v0" and "view_budget" in env_kwargs:
-        make_kwargs.setdefault("max_episode_steps", env_kwargs["view_budget"])
+    length_kwarg = EPISODE_LENGTH_KWARGS.get(env_id)
+    if length_kwarg in env_kwargs:
+        make_kwargs.setdefault("max_episode_steps", env_kwargs[length_kwarg])
     try:
         return gym.make(env_id, **make_kwargs, **env_kwargs)
     except (TypeError, ValueError, FileNotFoundError) as error:
@@ -275,4 +283,12 @@ class SB3Policy:
         if normalizer_path is not None and Path(normalizer_path).is_file():
             normalizer = run_folder.load_normalizer(normalizer_path)
             normalizer.training = False
+            if not same_space(model.observation_space, normalizer.observation_space):
+                # Caught here, not as a KeyError deep in SB3 in the middle of an evaluation.
+                raise run_folder.RunFolderError(
+                    f"{str(normalizer_path)!r} normalises observations of "
+                    f"{describe_space(normalizer.observation_space)}, but the model "
+                    f"{str(model_path)!r} takes {describe_space(model.observation_space)}: "
+                    "they come from different runs"
+                )
         return cls(model, normalizer)

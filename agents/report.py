@@ -32,6 +32,7 @@ from agents.statistics import (
     stratified_bootstrap_ci,
     wilson_interval,
 )
+from agents.training import SAVED_CONFIG_DEFAULTS
 from agents.video import record_videos
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 
@@ -177,7 +178,33 @@ def _progress_bar(total: int, enabled: bool):
     return tqdm(total=total, unit="episode", disable=not enabled, dynamic_ncols=True)
 
 
+#: What a run's config.yml says about how it was trained, seed aside: runs that differ in any
+#: of these are different methods, not training seeds of one.
+TRAINING_SETTINGS = (
+    "n_timesteps", "n_envs", "policy", "normalize", "hyperparams", "demonstrations",
+    "start_curriculum", "init_from", "eval_env_kwargs", "eval_freq", "eval_episodes",
+)  # fmt: skip
+
+
+def _training_settings(config: dict | None) -> dict | None:
+    """The TRAINING_SETTINGS of a run's config.yml, comparable across runs: an older
+    config.yml's missing keys take the defaults a resume gives them, an empty mapping counts as
+    none, and a trained start is named by its model's hash (its path differs per run)."""
+    if not config:
+        return None
+    config = {**SAVED_CONFIG_DEFAULTS, **config}
+    settings = {key: config.get(key) or None for key in TRAINING_SETTINGS}
+    start = settings["init_from"]
+    if start is not None:
+        settings["init_from"] = {
+            "sha256": start.get("sha256"),
+            "replay_buffer": bool(start.get("replay_buffer")),
+        }
+    return settings
+
+
 def _describe(contestant: Contestant) -> dict:
+    config = contestant.config
     return {
         "label": contestant.label,
         "group": contestant.group,
@@ -186,7 +213,8 @@ def _describe(contestant: Contestant) -> dict:
         "env_kwargs": contestant.env_kwargs,
         "source": contestant.source,
         "training_seed": contestant.seed,
-        "training_command": (contestant.config or {}).get("command"),
+        "training_command": (config or {}).get("command"),
+        "training_settings": _training_settings(config),
     }
 
 
@@ -282,19 +310,28 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
         "aggregate_notes": [],
     }
     baseline = next((r for r in results if r["label"] == task.baseline), None)
-    # Training seeds of one method: the same algorithm run in the same env settings.
-    groups: dict[tuple[str, str], list[int]] = {}
+    # Training seeds of one method: the same algorithm trained the same way in the same env
+    # settings.
+    groups: dict[tuple[str, str, str], list[int]] = {}
     for index, result in enumerate(results):
         if result["kind"] == "policy":
-            settings = json.dumps(result["env_kwargs"], sort_keys=True, default=str)
-            groups.setdefault((result["group"], settings), []).append(index)
-    for (group, _), indices in groups.items():
+            env_settings = json.dumps(result["env_kwargs"], sort_keys=True, default=str)
+            training = json.dumps(result.get("training_settings"), sort_keys=True, default=str)
+            groups.setdefault((result["group"], env_settings, training), []).append(index)
+    for key, indices in groups.items():
+        group, env_settings, _ = key
         members = [results[i] for i in indices]
         if len(members) < 2:
-            if sum(key[0] == group for key in groups) > 1:
+            others = [other for other in groups if other[0] == group and other != key]
+            if others:
+                differs = (
+                    "other training settings (hyper-parameters, steps or evaluation)"
+                    if any(other[1] == env_settings for other in others)
+                    else "other env kwargs"
+                )
                 section["aggregate_notes"].append(
                     f"{members[0]['label']}: not aggregated with the other {group} runs, it ran "
-                    "with other env kwargs"
+                    f"with {differs}"
                 )
             continue
         seeds = [m["training_seed"] for m in members]

@@ -14,6 +14,7 @@ Layout (file names are constants here, so train.py, evaluate.py and tests agree)
     <run>/learning_curve.png  evaluation return and task metric against steps
     <run>/result.json         final comparison against the scripted baseline
     <run>/demonstrations.json expert episodes that seeded the replay buffer (when configured)
+    <run>/.lock               held by the process training in the folder (see exclusive())
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ TENSORBOARD = "tensorboard"
 LEARNING_CURVE = "learning_curve.png"
 RESULT = "result.json"
 DEMONSTRATIONS = "demonstrations.json"
+LOCK = ".lock"
 
 #: Everything a run writes into its folder.
 ENTRIES = (
@@ -64,6 +66,7 @@ ENTRIES = (
     LEARNING_CURVE,
     RESULT,
     DEMONSTRATIONS,
+    LOCK,
 )
 
 _CHECKPOINT = re.compile(r"model_(\d+)_steps\.zip")
@@ -183,6 +186,48 @@ def atomic_path(path: Path) -> Iterator[Path]:
         os.replace(temporary, path)
     finally:
         temporary.unlink(missing_ok=True)
+
+
+@contextmanager
+def exclusive(run_dir: Path) -> Iterator[None]:
+    """Holds ``run_dir`` (an existing folder) for this process while the block runs, or fails
+    with a RunFolderError naming the process that holds it: two processes training in one
+    folder (a job submitted twice, a requeued one) would write the same steps twice into its
+    monitor files and overwrite each other's checkpoints. The lock is the kernel's (flock), so
+    a killed process leaves none behind."""
+    try:
+        import fcntl
+    except ImportError:  # not a POSIX system: no locking
+        yield
+        return
+    path = Path(run_dir) / LOCK
+    try:
+        descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as error:
+        raise RunFolderError(
+            f"cannot write into the run folder {str(run_dir)!r}: {error}"
+        ) from error
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(descriptor, 32).decode(errors="replace").strip() or "unknown"
+            raise RunFolderError(
+                f"{str(run_dir)!r} is in use by another training process (pid {holder}); "
+                "wait for it to finish, or stop it first"
+            ) from None
+        except OSError as error:  # a file system without flock (some network ones)
+            print(
+                f"warning: {str(run_dir)!r} cannot be locked ({error}); nothing stops a second "
+                "process from training in it",
+                file=sys.stderr,
+            )
+        else:
+            os.ftruncate(descriptor, 0)
+            os.write(descriptor, str(os.getpid()).encode())
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
 
 
 def save_atomically(save, path: Path) -> None:

@@ -8,6 +8,7 @@ periodic evaluation and checkpoints, resume, and finish with a comparison to the
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import inspect
 import json
@@ -40,6 +41,7 @@ from agents.config import (
     MAX_SEED,
     SCHEDULED,
     ConfigError,
+    check_net_arch,
     closest,
     deep_update,
     default_hyperparams,
@@ -77,6 +79,8 @@ DEFAULT_SEED = 0
 DEFAULT_VEC_ENV = "dummy"
 DEFAULT_DEVICE = "auto"
 DEFAULT_POLICY = "MultiInputPolicy"
+#: Every observation preset of both envs is a Dict, which only SB3's MultiInputPolicy takes.
+POLICIES = (DEFAULT_POLICY,)
 #: The torch device types training is tested on (--device; "auto" picks one of them).
 SUPPORTED_DEVICE_TYPES = ("cpu", "cuda")
 DEFAULT_EVAL_FREQ = 5_000  # env steps between periodic evaluations
@@ -167,7 +171,7 @@ def resolve_config(
             "n-envs", n_envs if n_envs is not None else harness.get("n_envs", 1)
         ),
         "vec_env": vec_env,
-        "policy": harness.get("policy", DEFAULT_POLICY),
+        "policy": require_known("policy", harness.get("policy", DEFAULT_POLICY), POLICIES),
         "normalize": normalize,
         "demonstrations": check_demonstrations(env_id, algo, harness.get("demonstrations")),
         "start_curriculum": check_start_curriculum(env_id, harness.get("start_curriculum")),
@@ -189,7 +193,10 @@ def resolve_config(
         if init_from
         else None
     )
-    policy_kwargs(config["hyperparams"].get("policy_kwargs"))  # fails early on bad names
+    named = config["hyperparams"].get("policy_kwargs")
+    policy_kwargs(named)  # fails early on bad names
+    if named and "net_arch" in named:
+        check_net_arch(algo, named["net_arch"])
     return config
 
 
@@ -543,13 +550,10 @@ def new_run_dir(config: dict, runs_dir: Path = DEFAULT_RUNS_DIR) -> Path:
 
 
 def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
-    """A new run in ``run_dir`` (created; must not already hold a run)."""
+    """A new run in ``run_dir`` (created; must not already hold a run, nor be in use by
+    another process)."""
     run_dir = Path(run_dir)
-    if (run_dir / run_folder.CONFIG).exists():
-        raise ConfigError(
-            f"{str(run_dir)!r} already holds a run; continue it with --resume {run_dir} "
-            "or choose another --run-dir"
-        )
+    _refuse_a_run_folder(run_dir)
     # Loaded before the folder is made: a refused start leaves nothing behind.
     trained = (
         load_trained_start(
@@ -563,14 +567,26 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
         prepare_output_folder(run_dir)
     except OutputFolderError as error:
         raise ConfigError(f"cannot make the run folder {str(run_dir)!r}: {error}") from error
-    try:
-        model, evaluation = _start(config, run_dir, trained)
-    except BaseException:
-        # Refused, or stopped while setting up (SAC's demonstrations take minutes): nothing
-        # to resume, and the config.yml left behind would refuse the next start here.
-        _remove_written(run_dir, before)
-        raise
-    return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
+    with run_folder.exclusive(run_dir):
+        _refuse_a_run_folder(run_dir)  # again: another start may have written one meanwhile
+        try:
+            model, evaluation = _start(config, run_dir, trained)
+        except BaseException as error:
+            # Refused, or stopped while setting up (SAC's demonstrations take minutes): nothing
+            # to resume, and the config.yml left behind would refuse the next start here.
+            _remove_written(run_dir, before)
+            if isinstance(error, KeyboardInterrupt):
+                print("\ninterrupted before training began: nothing was saved", file=sys.stderr)
+            raise
+        return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
+
+
+def _refuse_a_run_folder(run_dir: Path) -> None:
+    if (run_dir / run_folder.CONFIG).exists():
+        raise ConfigError(
+            f"{str(run_dir)!r} already holds a run; continue it with --resume {run_dir} "
+            "or choose another --run-dir"
+        )
 
 
 def _start(config: dict, run_dir: Path, trained: TrainedStart | None):
@@ -788,8 +804,16 @@ def load_trained_weights(model, trained: TrainedStart) -> None:
 def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = False, **overrides):
     """Continue a run from its newest checkpoint, with the step counter, the replay buffer
     (off-policy algorithms) and the observation normaliser as they were saved. ``n_timesteps``
-    may raise the run's total; ``overrides`` may change ``device`` or ``final_episodes``."""
+    may raise the run's total; ``overrides`` may change ``device`` or ``final_episodes``.
+    A folder another process is training in is refused."""
     run_dir = Path(run_dir)
+    # A folder that is no run gets read_config's message, and no lock file left in it.
+    is_run = (run_dir / run_folder.CONFIG).is_file()
+    with run_folder.exclusive(run_dir) if is_run else contextlib.nullcontext():
+        return _resume(run_dir, n_timesteps, progress_bar, **overrides)
+
+
+def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overrides):
     config = {**SAVED_CONFIG_DEFAULTS, **run_folder.read_config(run_dir)}
     _check_saved_config(config, run_dir / run_folder.CONFIG)
     steps = run_folder.latest_checkpoint(run_dir)
@@ -830,6 +854,7 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
     venv = evaluation = None
     try:
         venv = build_vec_env(config, run_dir)
+        _check_checkpoint_fits(paths["model"], venv, run_dir / run_folder.CONFIG)
         if config["normalize"]:
             normalizer = run_folder.load_normalizer(paths["normalizer"])
             normalizer.set_venv(venv)
@@ -856,10 +881,34 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
             run_dir, steps, (p for p in monitors_before if p.name.endswith(".monitor.csv"))
         )
         evaluation = _periodic_evaluation(config, run_dir, venv)
-    except BaseException:  # refused: the run folder is left as it was
+    except BaseException as error:  # refused: the run folder is left as it was
         _close_opened(venv, evaluation)
         for path in set((run_dir / run_folder.MONITOR).glob("*")) - monitors_before:
             path.unlink(missing_ok=True)
+        if isinstance(error, KeyboardInterrupt):
+            print(
+                "\ninterrupted while resuming, before training: the run folder is as it was",
+                file=sys.stderr,
+            )
+        older = [earlier for earlier in run_folder.checkpoint_steps(run_dir) if earlier < steps]
+        damaged = isinstance(error, run_folder.RunFolderError) and any(
+            f"{str(path)!r} is not a readable" in str(error) for path in paths.values()
+        )
+        if damaged and older:
+            # Writes are atomic, so a damaged checkpoint is a disk fault or a bad copy: say
+            # how to go on from the one before it.
+            previous = run_folder.checkpoint_paths(run_dir, older[-1])["replay_buffer"]
+            raise run_folder.RunFolderError(
+                f"{error}. The checkpoint at {older[-1]} steps is older: to resume from it, "
+                f"move the files of step {steps} (checkpoints/*_{steps}_steps.*) out of "
+                f"{str(run_dir)!r}"
+                + (
+                    " (it has no replay buffer: only the newest is kept, so "
+                    f"{config['algo'].upper()} would go on with an empty one)"
+                    if paths["replay_buffer"].exists() and not previous.is_file()
+                    else ""
+                )
+            ) from error
         raise
     run_folder.forget(run_dir, forgetting)
     if forgetting.dropped_evaluations or forgetting.dropped_episodes:
@@ -883,6 +932,26 @@ def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = F
         curriculum=curriculum_state,
         evaluation=evaluation,
     )
+
+
+def _check_checkpoint_fits(model_path: Path, venv, config_path: Path) -> None:
+    """A RunFolderError when the env that config.yml describes has other spaces than the
+    checkpoint was trained in (an edited ``env_kwargs``), which SB3's load would report as a
+    damaged checkpoint. An unreadable checkpoint passes, for the load to name the damage."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    try:
+        saved, _, _ = load_from_zip_file(model_path, device="cpu", load_data=True)
+    except run_folder.UNREADABLE:
+        return
+    for name in ("observation_space", "action_space"):
+        trained_in = (saved or {}).get(name)
+        if trained_in is not None and not same_space(getattr(venv, name), trained_in):
+            raise run_folder.RunFolderError(
+                f"{str(config_path)!r}: its env_kwargs give the {name} "
+                f"{describe_space(getattr(venv, name))}, but {str(model_path)!r} was trained "
+                f"in {describe_space(trained_in)}: was config.yml edited?"
+            )
 
 
 def _tensorboard_dir(config: dict, run_dir: Path) -> str | None:
@@ -1031,8 +1100,11 @@ def _check_saved_config(config: dict, path: Path) -> None:
         for key in ("eval_freq", "save_freq", "final_episodes"):
             int_at_least(key, config[key], minimum=0)
         int_at_least("eval_episodes", config["eval_episodes"])
-        if not isinstance(config["tensorboard"], bool):
-            raise ConfigError(f"tensorboard must be true or false, got {config['tensorboard']!r}")
+        int_at_least("torch_threads", config["torch_threads"])
+        for key in ("tensorboard", "normalize"):
+            if not isinstance(config[key], bool):
+                raise ConfigError(f"{key} must be true or false, got {config[key]!r}")
+        require_known("policy", config["policy"], POLICIES)
     except ConfigError as error:
         raise run_folder.RunFolderError(f"{str(path)!r}: {error}") from error
 

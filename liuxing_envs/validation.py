@@ -14,7 +14,13 @@ import numpy as np
 def require_choice(name: str, value, allowed) -> None:
     # An array compares element by element: one element would pass as that element (and be
     # kept as an array), more would raise numpy's ambiguous-truth error, which names nothing.
-    if isinstance(value, np.ndarray) or value not in allowed:
+    # A switch takes a bool, not 1 or 1.0 (which equal True, and would be recorded as given).
+    switch = _is_number(value)
+    if (
+        isinstance(value, np.ndarray)
+        or value not in allowed
+        or (switch and any(isinstance(choice, bool) for choice in allowed))
+    ):
         raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(allowed)}")
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from agents import run_folder
 from agents.statistics import (
@@ -284,6 +285,22 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     (note,) = section["aggregate_notes"]
     assert "not aggregated with the other ppo runs, it ran with other env kwargs" in note
 
+    # Nor is a seed trained with other hyper-parameters (a sweep is not a set of seeds).
+    tuned = tmp_path / "ppo_seed5"
+    shutil.copytree(runs[0], tuned)
+    config = tuned / run_folder.CONFIG
+    text = re.sub(r"(?m)^seed: \d+$", "seed: 5", config.read_text(), count=1)
+    config.write_text(re.sub(r"(?m)^(  gamma:) .*$", r"\1 0.97", text, count=1))
+    swept = tmp_path / "swept"
+    run_script(
+        *("evaluate.py", *runs, str(tuned), "--baselines", "none", "--episodes", "2"),
+        *("--reconstruct-episodes", "0", "--out", str(swept)),
+    )
+    section = read_report(swept)["environments"]["ViewPlanning-v0"]
+    assert [a["runs"] for a in section["aggregates"]] == [[Path(r).name for r in runs]]
+    (note,) = section["aggregate_notes"]
+    assert "ppo_seed5: not aggregated with the other ppo runs, it ran with other training" in note
+
 
 # --- bad input --------------------------------------------------------------------------------
 
@@ -456,6 +473,17 @@ def test_a_lone_shipped_policy_zip_names_its_own_algorithm(tmp_path, env_id, alg
         policy_contestant(lone, env_id=env_id)
 
 
+def test_a_normaliser_of_another_run_beside_a_model_is_refused_before_any_episode(tmp_path):
+    from agents.contestants import ContestantError, policy_contestant
+
+    lone = tmp_path / "policy.zip"
+    shutil.copy(SHIPPED_VIEW_POLICY / run_folder.BEST_MODEL, lone)
+    grasp_stats = REPO / "policies" / "InstrumentGrasp-v0" / "sac" / run_folder.BEST_NORMALIZER
+    shutil.copy(grasp_stats, tmp_path / run_folder.FINAL_NORMALIZER)
+    with pytest.raises(ContestantError, match="normalises observations of {forces.*different runs"):
+        policy_contestant(lone, env_id="ViewPlanning-v0")
+
+
 def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the_split(tmp_path):
     from agents.contestants import ContestantError, build_contestants
 
@@ -478,6 +506,10 @@ def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the
     assert chosen[0].env_kwargs["objects"] == ["arch"] and "object_set" not in chosen[0].env_kwargs
     with pytest.raises(ContestantError, match="--object-set, not --env-kwargs object_set"):
         build_contestants([str(run)], env_kwargs={"object_set": "train"})
+    with pytest.raises(ContestantError, match="--object-set and --env-kwargs objects=... both"):
+        build_contestants(
+            [str(run)], env_kwargs={"objects": ["arch"]}, splits={"ViewPlanning-v0": "train"}
+        )
 
 
 def test_the_split_flags_offer_exactly_the_envs_splits():
@@ -511,6 +543,48 @@ def test_a_run_trained_on_a_list_of_items_is_compared_on_the_held_out_split(
         else:
             assert tuple(env.unwrapped.instrument_names) == INSTRUMENT_SETS["held_out"]
         assert getattr(env.unwrapped, key) == value  # the run's other kwargs stay
+    finally:
+        env.close()
+
+
+def test_seeds_of_one_configuration_compare_equal_across_config_versions():
+    """An older config.yml lacks keys newer runs write with their defaults, and a fine-tune
+    names its source by a path of its own: neither makes two seeds two methods."""
+    from agents.report import _training_settings
+
+    config = yaml.safe_load((SHIPPED_VIEW_POLICY / run_folder.CONFIG).read_text())
+    older = {key: value for key, value in config.items() if key != "eval_env_kwargs"}
+    assert config["eval_env_kwargs"] == {}
+    assert _training_settings(older) == _training_settings(config)
+    tuned = [
+        {**config, "init_from": {"run": run, "model": f"{run}/best_model.zip", "sha256": "ab"}}
+        for run in ("policies/x", "./policies/x")
+    ]
+    assert _training_settings(tuned[0]) == _training_settings(tuned[1])
+    assert _training_settings(tuned[0]) != _training_settings(config)
+    other = {**config, "hyperparams": {**config["hyperparams"], "gamma": 0.9}}
+    assert _training_settings(other) != _training_settings(config)
+
+
+@pytest.mark.parametrize(
+    "env_id, length_kwarg",
+    [("ViewPlanning-v0", "view_budget"), ("InstrumentGrasp-v0", "episode_steps")],
+)
+def test_the_time_limit_follows_the_episode_length_kwarg(env_id, length_kwarg):
+    """Training, periodic evaluation and evaluate.py all make their envs here: a registered
+    limit left at its default cut the episodes short of what the env's reward counts on."""
+    from agents.evaluation import make_env
+
+    env = make_env(env_id, {length_kwarg: 3})
+    try:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        steps, done = 0, False
+        while not done and steps < 10:
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            steps, done = steps + 1, terminated or truncated
+        assert env.spec.max_episode_steps == 3
+        assert steps == 3
     finally:
         env.close()
 

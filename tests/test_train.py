@@ -6,6 +6,7 @@ benchmarks in the README)."""
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import pickle
@@ -53,12 +54,18 @@ def sb3_temporary_folders(temp_dir: Path) -> list[Path]:
     return sorted(temp_dir.glob("SB3-*"))
 
 
-def quick_args(env_id: str, algo: str, run_dir: Path, steps: int, n_envs: int = 2) -> list[str]:
+def quick_args(
+    env_id: str, algo: str, run_dir: Path, steps: int, n_envs: int = 2, hyperparams=()
+) -> list[str]:
+    """A short run's flags, ending in its --hyperparams: ``hyperparams`` items replace the
+    quick ones of the same key (train.py refuses a key given twice)."""
+    replaced = {item.partition("=")[0] for item in hyperparams}
+    quick = [i for i in QUICK_HYPERPARAMS[(env_id, algo)] if i.partition("=")[0] not in replaced]
     return [
         *("--env", env_id, "--algo", algo, "-n", str(steps), "--n-envs", str(n_envs)),
         *("--run-dir", str(run_dir), "--eval-freq", str(steps // 2)),
         *("--save-freq", str(steps // 2), *QUICK),
-        *("--hyperparams", *QUICK_HYPERPARAMS[(env_id, algo)]),
+        *("--hyperparams", *quick, *hyperparams),
     ]
 
 
@@ -82,6 +89,35 @@ def test_assignments_are_parsed_as_yaml_values_with_dotted_keys():
 def test_malformed_assignments_are_refused(item):
     with pytest.raises(ConfigError):
         parse_assignments(["b.c=1", item], "--x")
+
+
+@pytest.mark.parametrize(
+    "items, message",
+    [
+        (["gamma=0.9", "gamma=0.95"], "gamma: given twice"),
+        (["policy_kwargs.net_arch=[64]", "policy_kwargs={net_arch: [8]}"], "given with"),
+        (["policy_kwargs={net_arch: [8]}", "policy_kwargs.net_arch=[64]"], "given with"),
+        (["b=1", "b.c=2"], "given with b"),
+    ],
+)
+def test_a_setting_given_twice_is_refused_whatever_the_order(items, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_assignments(items, "--hyperparams")
+
+
+@pytest.mark.parametrize("script", ["train", "evaluate"])
+def test_repeated_key_value_flags_add_up(script):
+    """argparse's default keeps only a flag's last group: the earlier settings were dropped."""
+    module = importlib.import_module(script)
+    args = module.build_parser().parse_args(
+        ["--env-kwargs", "view_budget=6", "--env-kwargs", "motion=dynamic"]
+    )
+    assert args.env_kwargs == ["view_budget=6", "motion=dynamic"]
+    if script == "train":
+        args = module.build_parser().parse_args(
+            ["--hyperparams", "gamma=0.9", "--hyperparams", "batch_size=8"]
+        )
+        assert args.hyperparams == ["gamma=0.9", "batch_size=8"]
 
 
 def test_a_python_expression_stays_a_string():
@@ -138,6 +174,17 @@ def test_a_python_expression_stays_a_string():
             ["--hyperparams", "policy_kwargs.activation_fn=[[1]]"],
             "unknown activation function [[1]]",
         ),
+        (
+            ["--hyperparams", "policy_kwargs.net_arch.vf=[256]"],
+            "PPO policy_kwargs.net_arch must be a list of layer widths ([256, 256]) or a "
+            "mapping of exactly pi and vf to such lists",
+        ),
+        (["--hyperparams", "policy_kwargs.net_arch={pi: [64], qf: [64]}"], "got {'pi': [64]"),
+        (["--algo", "sac", "--hyperparams", "policy_kwargs.net_arch={pi: [64], vf: [8]}"], "qf"),
+        (["--hyperparams", "policy_kwargs.net_arch=[256, 0]"], "got [256, 0]"),
+        (["--hyperparams", "policy_kwargs.net_arch=abc"], "got 'abc'"),
+        (["--hyperparams", "policy=CnnPolicy"], "unknown policy 'CnnPolicy'"),
+        (["--hyperparams", "policy=5"], "unknown policy 5; allowed: MultiInputPolicy"),
         (["--vec-env", "subprocess"], "did you mean 'subproc'"),
         (["-n", "0"], "timesteps must be an integer >= 1"),
         (["--config", "no/such/file.yml"], "does not exist"),
@@ -146,6 +193,7 @@ def test_a_python_expression_stays_a_string():
         (["--resume", __file__], "is a file, not a run's folder"),
         (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
         (["--resume", "runs/x", "--init-from", "runs/y"], "--init-from cannot be changed"),
+        (["--resume", "runs/x", "-f", "elsewhere"], "--log-folder cannot be changed"),
         (["--init-from", "no/such/run"], "--init-from: run folder 'no/such/run' does not exist"),
         (["--init-replay-buffer"], "--init-replay-buffer needs --init-from RUN_DIR"),
         (["--device", "tpu"], "not a torch device"),
@@ -199,8 +247,7 @@ def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
     "hyperparam, reason",
     [
         ("batch_size=1", "`batch_size` must be greater than 1"),
-        ("policy_kwargs.net_arch=abc", "must be tuple of ints"),
-        ("policy_kwargs.net_arch=[-1]", "negative dimension -1"),
+        ("policy_kwargs.foo=1", "unexpected keyword argument 'foo'"),
     ],
 )
 def test_a_hyperparameter_sb3_refuses_leaves_no_run_folder(hyperparam, reason, tmp_path, capsys):
@@ -235,6 +282,39 @@ def test_a_run_folder_that_is_a_file_is_refused(tmp_path, capsys):
     assert exit_info.value.code == 2
     assert f"cannot make the run folder '{taken}'" in capsys.readouterr().err
     assert taken.read_text() == "not a folder"
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="run folders are locked with flock")
+@pytest.mark.parametrize("how", ["start", "resume"])
+def test_a_run_folder_another_process_trains_in_is_refused(how, tmp_path, capsys):
+    """A job submitted twice would write the same steps twice into the monitor files and
+    overwrite the other's checkpoints."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    argv = ["--run-dir", str(run_dir)]
+    if how == "resume":
+        argv = ["--resume", str(run_dir)]
+        (run_dir / run_folder.CONFIG).write_text("env_id: ViewPlanning-v0\n")
+    held = {path.name for path in run_dir.iterdir()} | {run_folder.LOCK}
+    with run_folder.exclusive(run_dir):  # as a training process holds it
+        with pytest.raises(SystemExit) as exit_info:
+            train.main(argv)
+        assert exit_info.value.code == 2
+        assert f"'{run_dir}' is in use by another training process (pid {os.getpid()})" in (
+            capsys.readouterr().err
+        )
+        assert {path.name for path in run_dir.iterdir()} == held
+    # Released (as by the process ending), the folder is taken: the next error is another one.
+    with pytest.raises(SystemExit):
+        train.main(["--resume", str(run_dir)])
+    assert "in use" not in capsys.readouterr().err
+
+
+def test_resuming_a_folder_that_is_no_run_leaves_nothing_in_it(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(["--resume", str(tmp_path)])
+    assert exit_info.value.code == 2 and "config.yml" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
@@ -395,13 +475,13 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
 def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_path):
     run_dir = tmp_path / "run"
     demonstrations = "demonstrations={expert: privileged-grasp, episodes: 1, pretrain_steps: 20}"
-    args = quick_args("InstrumentGrasp-v0", "sac", run_dir, 128, n_envs=1)
+    args = quick_args("InstrumentGrasp-v0", "sac", run_dir, 128, 1, [demonstrations])
     # At the env's own step sizes, where the scripted grasp finishes well inside the time
     # limit (at the YAML's 1 cm per step it often runs out of time).
     temp_dir = tmp_path / "tmp"
     temp_dir.mkdir()
     extra = ("--env-kwargs", "max_translation=0.02", "max_yaw=0.2")
-    run_train(*args, demonstrations, *extra, env={"TMPDIR": str(temp_dir)})
+    run_train(*args, *extra, env={"TMPDIR": str(temp_dir)})
     assert sb3_temporary_folders(temp_dir) == []  # the cloning steps' logger included
     added = json.loads((run_dir / run_folder.DEMONSTRATIONS).read_text())
     assert added == {
@@ -513,7 +593,7 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
     run_train(*quick_args("InstrumentGrasp-v0", "sac", source, 128, n_envs=1))
     # 32 steps before learning starts: the new run's weights are still the loaded ones.
     args = quick_args("InstrumentGrasp-v0", "sac", tuned, 32, n_envs=1)
-    run_train(*args, "learning_starts=64", "--init-from", str(source), "--final-episodes", "0")
+    run_train(*args, "--init-from", str(source), "--final-episodes", "0")
 
     trained = SAC.load(source / run_folder.BEST_MODEL)
     started = SAC.load(tuned / run_folder.FINAL_MODEL)
@@ -534,7 +614,7 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
 
     # With --init-replay-buffer it also keeps the trained run's newest replay buffer.
     args = quick_args("InstrumentGrasp-v0", "sac", tmp_path / "kept", 32, n_envs=1)
-    run_train(*args, "learning_starts=64", "--init-from", str(source), "--init-replay-buffer")
+    run_train(*args, "--init-from", str(source), "--init-replay-buffer")
     kept = SAC.load(tmp_path / "kept" / run_folder.FINAL_MODEL)
     kept.load_replay_buffer(run_folder.checkpoint_paths(tmp_path / "kept", 32)["replay_buffer"])
     trained.load_replay_buffer(run_folder.checkpoint_paths(source, 128)["replay_buffer"])
@@ -797,7 +877,7 @@ def test_a_signal_while_the_trained_run_is_saved_waits_for_the_save(tmp_path, mo
     assert "comparison" in json.loads((run_dir / run_folder.RESULT).read_text())
 
 
-def test_a_signal_before_the_first_step_leaves_no_run_folder(tmp_path, monkeypatch):
+def test_a_signal_before_the_first_step_leaves_no_run_folder(tmp_path, monkeypatch, capsys):
     """Ctrl-C while demonstrations filled SAC's replay buffer (outside learn()) left config.yml
     and no checkpoint: --resume found nothing to resume, a new start a run in the folder."""
     monkeypatch.setattr(
@@ -811,6 +891,7 @@ def test_a_signal_before_the_first_step_leaves_no_run_folder(tmp_path, monkeypat
     ]
     assert train.main(argv) == 130
     assert not run_dir.exists()
+    assert "interrupted before training began: nothing was saved" in capsys.readouterr().err
 
 
 def test_a_run_with_the_largest_seed_resumes(tmp_path):
@@ -848,6 +929,15 @@ def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(tmp_path):
         ("seed: 0", "seed: zero", "seed must be an integer in [0, 4294967295], got 'zero'"),
         ("final_episodes: 0", "final_episodes: -1", "final_episodes must be an integer >= 0"),
         ("env_kwargs:", "env_kwargs: 5\nold_env_kwargs:", "env_kwargs must be a mapping, got 5"),
+        ("torch_threads: 1", "torch_threads: x", "torch_threads must be an integer >= 1"),
+        ("normalize: false", "normalize: 'no'", "normalize must be true or false, got 'no'"),
+        ("policy: MultiInputPolicy", "policy: CnnPolicy", "unknown policy 'CnnPolicy'"),
+        # Not the checkpoint's fault: SB3's load called it unreadable.
+        (
+            "env_kwargs:",
+            "env_kwargs:\n  view_budget: 6",
+            "its env_kwargs give the observation_space {budget: Box(1,) float32",
+        ),
     ],
 )
 def test_a_damaged_config_is_refused_on_resume_before_the_folder_changes(
@@ -858,10 +948,19 @@ def test_a_damaged_config_is_refused_on_resume_before_the_folder_changes(
     path = run_dir / run_folder.CONFIG
     assert f"\n{saved}\n" in path.read_text()
     path.write_text(path.read_text().replace(f"\n{saved}\n", f"\n{edited}\n"))
-    before = {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()}
+    before = run_files(run_dir)
     result = run_train("--resume", str(run_dir), "-n", "128", check=False)
     assert result.returncode == 2 and f"config.yml': {message}" in result.stderr
-    assert {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()} == before
+    assert run_files(run_dir) == before
+
+
+def run_files(run_dir: Path) -> dict[Path, bytes]:
+    """The contents of a run folder's files, but its lock's (the pid of its last holder)."""
+    return {
+        path: path.read_bytes()
+        for path in run_dir.rglob("*")
+        if path.is_file() and path.name != run_folder.LOCK
+    }
 
 
 def test_a_config_without_optional_settings_resumes_with_their_defaults(tmp_path):
@@ -888,17 +987,27 @@ def test_a_config_without_optional_settings_resumes_with_their_defaults(tmp_path
 
 def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
     run_dir = tmp_path / "run"
-    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
-    before = {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()}
+    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 64, n_envs=1)  # checkpoints at 32, 64
+    run_train(*args, "--final-episodes", "0")
+    before = run_files(run_dir)
     result = run_train("--resume", str(run_dir), "-n", "128", "--torch-threads", "0", check=False)
     assert result.returncode == 2 and "torch-threads must be an integer >= 1" in result.stderr
     checkpoint = run_folder.checkpoint_paths(run_dir, 64)["model"]
     checkpoint.write_bytes(before[checkpoint][:1000])  # a truncated checkpoint
     result = run_train("--resume", str(run_dir), "-n", "128", check=False)
     assert result.returncode == 2 and "model_64_steps.zip" in result.stderr
-    after = {path: path.read_bytes() for path in run_dir.rglob("*") if path.is_file()}
-    assert after == {**before, checkpoint: before[checkpoint][:1000]}
+    assert "The checkpoint at 32 steps is older: to resume from it, move" in result.stderr
+    assert run_files(run_dir) == {**before, checkpoint: before[checkpoint][:1000]}
     checkpoint.write_bytes(before[checkpoint])
+    # An edited config.yml is no damaged checkpoint: no advice to fall back on an older one.
+    config_path = run_dir / run_folder.CONFIG
+    config_path.write_text(
+        config_path.read_text().replace("\nenv_kwargs:\n", "\nenv_kwargs:\n  view_budget: 6\n")
+    )
+    result = run_train("--resume", str(run_dir), "-n", "128", check=False)
+    assert result.returncode == 2 and "was config.yml edited?" in result.stderr
+    assert "is older" not in result.stderr
+    config_path.write_bytes(before[config_path])
     run_train("--resume", str(run_dir), "-n", "128", "--final-episodes", "0")
     config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
     assert " -n 64 " in f"{config['command']} " and config["n_timesteps"] == 128

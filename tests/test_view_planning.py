@@ -309,6 +309,13 @@ def test_the_procedural_set_is_its_64_shapes():
         ({"objects": ["torus"], "scales": (5.0,)}, "'torus' at scale 5.0 reaches 0.360 m"),
         ({"objects": ["u_bracket"], "scales": (4.0,)}, "'u_bracket' at scale 4.0: observation"),
         ({"scales": {0.8: "a", 1.0: "b"}}, "scales must be a non-empty list"),  # was its keys
+        # Two actions for one candidate view.
+        ({"discrete_azimuths_deg": (0, 90, 360)}, "discrete_azimuths_deg must name distinct"),
+        ({"discrete_elevations_deg": (30, 30)}, "discrete_elevations_deg must name distinct"),
+        ({"discrete_elevations_deg": (30, 90)}, "below 90 \\(the top view is always a candidate"),
+        # A switch takes a bool: 1 would be recorded in a run's config as given.
+        ({"privileged": 1}, r"privileged=1 is not allowed; choose one of \[False, True\]"),
+        ({"filter_arm_points": np.float64(0.0)}, "filter_arm_points=.*0.0.* is not allowed"),
     ],
 )
 def test_bad_kwargs_fail_with_clear_messages(kwargs, message):
@@ -509,6 +516,26 @@ def test_noisy_depth_is_seeded():
     np.testing.assert_array_equal(first["depth"], second["depth"])
     assert not np.array_equal(first["depth"], third["depth"])
     env.close()
+
+
+def test_depth_noise_can_be_given_as_a_config_gives_it():
+    """train.py's --env-kwargs and YAML give a mapping or a name, not a DepthNoise."""
+    from liuxing_envs.sim.camera import DepthNoise
+
+    named = ViewPlanningEnv(depth_noise="realsense", **FAST)
+    mapped = ViewPlanningEnv(depth_noise={"sigma_base": 0.002, "dropout_prob": 0.1}, **FAST)
+    assert named._depth_noise == DepthNoise.realsense_like()
+    assert mapped._depth_noise == DepthNoise(sigma_base=0.002, dropout_prob=0.1)
+    plain = ViewPlanningEnv(**FAST)
+    clean, _ = plain.reset(seed=3)
+    noisy, _ = mapped.reset(seed=3)
+    assert (noisy["depth"] != clean["depth"]).mean() > 0.1
+    for env in (named, mapped, plain):
+        env.close()
+    with pytest.raises(ValueError, match="depth_noise has no setting 'sigma'; its settings are"):
+        ViewPlanningEnv(depth_noise={"sigma": 0.01}, **FAST)
+    with pytest.raises(TypeError, match="depth_noise must be a DepthNoise, None, 'realsense'"):
+        ViewPlanningEnv(depth_noise="kinect", **FAST)
 
 
 def test_ground_truth_only_in_the_privileged_observation():

@@ -249,7 +249,8 @@ class ViewPlanningEnv(gym.Env):
     than ``table_crop_height`` at the smallest scale; overrides ``object_set``), ``scales``,
     ``object_region``, ``resolution`` (square depth image side),
     ``depth_backend`` ({"auto", "gl", "raycast", "embree"}; embree is the fastest, see
-    ``liuxing_envs.sim.camera``), ``depth_noise`` (a ``DepthNoise`` or None),
+    ``liuxing_envs.sim.camera``), ``depth_noise`` (a ``DepthNoise``, None, ``"realsense"``
+    for ``DepthNoise.realsense_like()``, or a mapping of its fields, as YAML gives it),
     the action ranges above, ``coverage_samples``, ``epsilon_fraction``, ``success_coverage``,
     ``terminate_on_success``, ``coverage_reward_scale``, ``motion_cost``, ``refusal_penalty``,
     ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``,
@@ -388,6 +389,20 @@ class ViewPlanningEnv(gym.Env):
         discrete_elevations_deg = require_numbers(
             "discrete_elevations_deg", discrete_elevations_deg, 5.0, 90.0
         )
+        # A repeated candidate would be two actions for one view; the top view is always one.
+        if max(discrete_elevations_deg) >= 90.0:
+            raise ValueError(
+                "discrete_elevations_deg must be below 90 (the top view is always a candidate), "
+                f"got {list(discrete_elevations_deg)}"
+            )
+        for name, given, directions in (
+            ("discrete_azimuths_deg", discrete_azimuths_deg, np.mod(discrete_azimuths_deg, 360)),
+            ("discrete_elevations_deg", discrete_elevations_deg, np.array(discrete_elevations_deg)),
+        ):
+            if np.unique(directions).size < directions.size:
+                raise ValueError(
+                    f"{name} must name distinct directions (azimuths modulo 360), got {list(given)}"
+                )
         # The views whose sight decides which samples coverage counts: the action's own.
         if action_mode == "continuous":
             self._observation_views = (
@@ -409,8 +424,7 @@ class ViewPlanningEnv(gym.Env):
                 f"object_region must be ((x_min, y_min), (x_max, y_max)) with min <= max, "
                 f"got {object_region!r}"
             )
-        if depth_noise is not None and not isinstance(depth_noise, DepthNoise):
-            raise TypeError(f"depth_noise must be a DepthNoise or None, got {type(depth_noise)}")
+        depth_noise = DepthNoise.from_setting(depth_noise)
 
         self.view_budget = view_budget
         self.action_mode = action_mode

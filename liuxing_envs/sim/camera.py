@@ -19,9 +19,11 @@ All see the geoms in :data:`DEPTH_GEOM_GROUPS` and nothing else (no sites, tendo
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import numbers
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -279,6 +281,10 @@ def grazing_mask(
     return valid & has_u & has_v & (n_sq > 0) & steep
 
 
+def _is_real(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
 @dataclass(frozen=True, kw_only=True)
 class DepthNoise:
     """A simple per-pixel depth-sensor noise model; every effect is off by default.
@@ -311,17 +317,18 @@ class DepthNoise:
             ("quantization", "m"),
         ):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0.0):
+            if not (_is_real(value) and math.isfinite(value) and value >= 0.0):
                 raise ValueError(
                     f"DepthNoise.{name} must be a finite number >= 0 ({unit}), got {value!r}"
                 )
         angle = self.grazing_dropout_deg
-        if angle is not None and not (math.isfinite(angle) and 0.0 < angle < 90.0):
+        if angle is not None and not (_is_real(angle) and math.isfinite(angle) and 0 < angle < 90):
             raise ValueError(
                 "DepthNoise.grazing_dropout_deg must be None (off) or in the open interval "
                 f"(0, 90) degrees, got {angle!r}"
             )
-        if not (math.isfinite(self.dropout_prob) and 0.0 <= self.dropout_prob <= 1.0):
+        probability = self.dropout_prob
+        if not (_is_real(probability) and math.isfinite(probability) and 0 <= probability <= 1):
             raise ValueError(
                 f"DepthNoise.dropout_prob must be in [0, 1], got {self.dropout_prob!r}"
             )
@@ -335,6 +342,28 @@ class DepthNoise:
             quantization=REALSENSE_QUANTIZATION,
             grazing_dropout_deg=REALSENSE_GRAZING_DROPOUT_DEG,
             dropout_prob=REALSENSE_DROPOUT_PROB,
+        )
+
+    @classmethod
+    def from_setting(cls, value, name: str = "depth_noise") -> DepthNoise | None:
+        """A DepthNoise from what an env kwarg may hold: a DepthNoise, None (no noise),
+        ``"realsense"`` (:meth:`realsense_like`), or a mapping of its fields, as a YAML
+        config or ``--env-kwargs 'depth_noise={sigma_base: 0.001}'`` gives it."""
+        if value is None or isinstance(value, cls):
+            return value
+        if value == "realsense":
+            return cls.realsense_like()
+        names = [field.name for field in dataclasses.fields(cls)]
+        if isinstance(value, Mapping):
+            unknown = [key for key in value if key not in names]
+            if unknown:
+                raise ValueError(
+                    f"{name} has no setting {unknown[0]!r}; its settings are {', '.join(names)}"
+                )
+            return cls(**value)
+        raise TypeError(
+            f"{name} must be a DepthNoise, None, 'realsense' or a mapping of "
+            f"{', '.join(names)}; got {value!r}"
         )
 
     @property
