@@ -344,10 +344,13 @@ def build_vec_env(config: dict, run_dir: Path) -> gym.Env:
     task = task_for(config["env_id"])
     monitor_dir = run_dir / run_folder.MONITOR
     monitor_dir.mkdir(parents=True, exist_ok=True)
+    # Nanoseconds: a resume within the second its run stopped in, named by whole seconds,
+    # overwrote that run's monitor files (its training episodes).
+    stamp = time.time_ns()
     factories = [
         _env_factory(
             config,
-            str(monitor_dir / f"env{rank}_{int(time.time())}"),
+            str(monitor_dir / f"env{rank}_{stamp}"),
             (task.metric,),
         )
         for rank in range(config["n_envs"])

@@ -793,6 +793,16 @@ def test_a_run_stopped_half_way_through_a_rollout_counts_its_episodes_once(tmp_p
     assert training_returns(run_dir)[0][-1] == 96
 
 
+def test_each_start_of_training_writes_monitor_files_of_its_own(tmp_path, monkeypatch):
+    """Named by whole seconds, the files of a resume within the second its run stopped in
+    replaced the run's own (a learning curve that lost its first episodes, once in CI)."""
+    monkeypatch.setattr(training.time, "time", lambda: 1_700_000_000.0)  # the same second
+    config = training.resolve_config(hyperparams={"n_envs": 1})
+    for _ in range(2):
+        training.build_vec_env(config, tmp_path).close()
+    assert len(list((tmp_path / run_folder.MONITOR).glob("*.monitor.csv"))) == 2
+
+
 def test_a_failure_after_training_keeps_the_run_folder(tmp_path, monkeypatch):
     """With no checkpoint yet (--save-freq 0), a start that failed as late as saving the
     trained model (a full disk) was treated as refused and its whole folder removed, best
