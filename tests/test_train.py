@@ -796,8 +796,14 @@ def test_a_run_stopped_half_way_through_a_rollout_counts_its_episodes_once(tmp_p
 def test_each_start_of_training_writes_monitor_files_of_its_own(tmp_path, monkeypatch):
     """Named by whole seconds, the files of a resume within the second its run stopped in
     replaced the run's own (a learning curve that lost its first episodes, once in CI)."""
-    monkeypatch.setattr(training.time, "time", lambda: 1_700_000_000.0)  # the same second
-    config = training.resolve_config(hyperparams={"n_envs": 1})
+    import types
+
+    # The same second for agents.training alone (patched everywhere, it stalled other code).
+    frozen = types.SimpleNamespace(time=lambda: 1_700_000_000.0, time_ns=time.time_ns)
+    monkeypatch.setattr(training, "time", frozen)
+    config = training.resolve_config(
+        env_id="InstrumentGrasp-v0", algo="ppo", hyperparams={"n_envs": 1}
+    )
     for _ in range(2):
         training.build_vec_env(config, tmp_path).close()
     assert len(list((tmp_path / run_folder.MONITOR).glob("*.monitor.csv"))) == 2
