@@ -147,7 +147,9 @@ def main(argv: list[str] | None = None) -> int:
                 init_replay_buffer=args.init_replay_buffer,
             )
         )
-        run_dir = args.run_dir or training.new_run_dir(config, args.log_folder or "runs")
+        run_dir = args.run_dir or training.new_run_dir(
+            config, args.log_folder or training.DEFAULT_RUNS_DIR
+        )
         print(f"run folder: {run_dir}", flush=True)
         training.train(config, run_dir, progress_bar=args.progress_bar)
     except (ConfigError, RunFolderError) as error:

@@ -107,6 +107,14 @@ class RunFolderError(ValueError):
     """A run folder that cannot be used as asked (missing, incomplete, not a run)."""
 
 
+class UnreadableFileError(RunFolderError):
+    """A file of a run folder that is there but cannot be read (truncated, corrupt, foreign)."""
+
+    def __init__(self, message: str, path: Path) -> None:
+        super().__init__(message)
+        self.path = Path(path)
+
+
 def checkpoint_paths(run_dir: Path, steps: int) -> dict[str, Path]:
     folder = Path(run_dir) / CHECKPOINTS
     return {
@@ -250,9 +258,10 @@ def load_model(algo_class, path: Path, **kwargs):
     try:
         return algo_class.load(path, **kwargs)
     except UNREADABLE as error:
-        raise RunFolderError(
+        raise UnreadableFileError(
             f"{str(path)!r} is not a readable {algo_class.__name__} model zip (truncated, "
-            f"corrupt or foreign): {type(error).__name__}: {error}"
+            f"corrupt or foreign): {type(error).__name__}: {error}",
+            path,
         ) from error
 
 
@@ -264,9 +273,10 @@ def load_normalizer(path: Path):
     try:
         normalizer = pickle.load(io.BytesIO(path.read_bytes()))
     except UNREADABLE as error:
-        raise RunFolderError(
+        raise UnreadableFileError(
             f"{str(path)!r} is not a readable VecNormalize file (missing, truncated, corrupt "
-            f"or foreign): {type(error).__name__}: {error}"
+            f"or foreign): {type(error).__name__}: {error}",
+            path,
         ) from error
     if not isinstance(normalizer, VecNormalize):
         raise RunFolderError(
@@ -283,9 +293,10 @@ def read_replay_buffer(path: Path):
     try:
         buffer = load_from_pkl(Path(path))
     except UNREADABLE as error:
-        raise RunFolderError(
+        raise UnreadableFileError(
             f"{str(path)!r} is not a readable replay buffer (truncated, corrupt or foreign): "
-            f"{type(error).__name__}: {error}"
+            f"{type(error).__name__}: {error}",
+            path,
         ) from error
     if not isinstance(buffer, ReplayBuffer):
         raise RunFolderError(
@@ -313,9 +324,10 @@ def read_curriculum_state(path: Path) -> dict | None:
         level, recent = float(state["level"]), [bool(s) for s in state["recent"]]
         history = [[int(steps), float(at)] for steps, at in state["history"]]
     except (ValueError, TypeError, KeyError, UnicodeDecodeError) as error:
-        raise RunFolderError(
+        raise UnreadableFileError(
             f"{str(path)!r} is not a readable start-curriculum state (truncated or corrupt): "
-            f"{type(error).__name__}: {error}"
+            f"{type(error).__name__}: {error}",
+            path,
         ) from error
     return {"level": level, "recent": recent, "history": history}
 

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
+
 from gymnasium import spaces
+
+#: What a saved SB3 model records of the env it was trained in.
+MODEL_SPACES = ("observation_space", "action_space")
 
 
 def same_space(expected: spaces.Space, actual: spaces.Space) -> bool:
@@ -23,3 +28,11 @@ def describe_space(space: spaces.Space) -> str:
     if isinstance(space, spaces.Box):
         return f"Box{space.shape} {space.dtype}"
     return repr(space)
+
+
+def mismatched_spaces(env, saved: Mapping) -> Iterator[tuple[str, spaces.Space, object]]:
+    """``(name, env's space, saved space)`` for each of :data:`MODEL_SPACES` where ``env``'s
+    differs from ``saved`` (a saved model's data, which may lack one: None)."""
+    for name in MODEL_SPACES:
+        if not same_space(getattr(env, name), saved.get(name)):
+            yield name, getattr(env, name), saved.get(name)

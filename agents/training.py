@@ -68,7 +68,7 @@ from agents.evaluation import (
 )
 from agents.plotting import plot_learning_curve
 from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS
-from agents.spaces import describe_space, same_space
+from agents.spaces import describe_space, mismatched_spaces
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}
@@ -758,13 +758,11 @@ def load_trained_start(
         ) from error
     env = make_env(env_id, env_kwargs)
     try:
-        for name in ("observation_space", "action_space"):
-            if not same_space(getattr(env, name), saved.get(name)):
-                raise ConfigError(
-                    f"--init-from model {path!r} has the {name} "
-                    f"{describe_space(saved.get(name))}; this run's env has "
-                    f"{describe_space(getattr(env, name))} (different env kwargs?)"
-                )
+        for name, expected, trained_in in mismatched_spaces(env, saved):
+            raise ConfigError(
+                f"--init-from model {path!r} has the {name} {describe_space(trained_in)}; "
+                f"this run's env has {describe_space(expected)} (different env kwargs?)"
+            )
     finally:
         env.close()
     normalizer, buffer = init_from.get("normalizer"), init_from.get("replay_buffer")
@@ -894,8 +892,8 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
                 file=sys.stderr,
             )
         older = [earlier for earlier in run_folder.checkpoint_steps(run_dir) if earlier < steps]
-        damaged = isinstance(error, run_folder.RunFolderError) and any(
-            f"{str(path)!r} is not a readable" in str(error) for path in paths.values()
+        damaged = isinstance(error, run_folder.UnreadableFileError) and (
+            error.path in paths.values()
         )
         if damaged and older:
             # Writes are atomic, so a damaged checkpoint is a disk fault or a bad copy: say
@@ -947,12 +945,11 @@ def _check_checkpoint_fits(model_path: Path, venv, config_path: Path) -> None:
         saved, _, _ = load_from_zip_file(model_path, device="cpu", load_data=True)
     except run_folder.UNREADABLE:
         return
-    for name in ("observation_space", "action_space"):
-        trained_in = (saved or {}).get(name)
-        if trained_in is not None and not same_space(getattr(venv, name), trained_in):
+    for name, expected, trained_in in mismatched_spaces(venv, saved or {}):
+        if trained_in is not None:
             raise run_folder.RunFolderError(
                 f"{str(config_path)!r}: its env_kwargs give the {name} "
-                f"{describe_space(getattr(venv, name))}, but {str(model_path)!r} was trained "
+                f"{describe_space(expected)}, but {str(model_path)!r} was trained "
                 f"in {describe_space(trained_in)}: was config.yml edited?"
             )
 

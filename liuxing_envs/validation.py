@@ -15,7 +15,7 @@ def require_choice(name: str, value, allowed) -> None:
     # An array compares element by element: one element would pass as that element (and be
     # kept as an array), more would raise numpy's ambiguous-truth error, which names nothing.
     # A switch takes a bool, not 1 or 1.0 (which equal True, and would be recorded as given).
-    switch = _is_number(value)
+    switch = is_number(value)
     if (
         isinstance(value, np.ndarray)
         or value not in allowed
@@ -34,7 +34,7 @@ def require_int(name: str, value, low: int, high: int) -> None:
 
 
 def require_number(name: str, value, low: float, high: float) -> None:
-    if not _is_number(value) or not (math.isfinite(value) and low <= value <= high):
+    if not is_number(value) or not (math.isfinite(value) and low <= value <= high):
         raise ValueError(f"{name} must be a number in [{low}, {high}], got {value!r}")
 
 
@@ -47,7 +47,7 @@ def require_range(name: str, value, low: float, high: float) -> tuple[float, flo
         first, second = value
     except (TypeError, ValueError):
         raise ValueError(message) from None
-    if not (_is_number(first) and _is_number(second)):
+    if not (is_number(first) and is_number(second)):
         raise ValueError(message)
     first, second = float(first), float(second)
     if not (low <= first <= second <= high):
@@ -63,7 +63,7 @@ def require_numbers(name: str, value, low: float, high: float) -> tuple[float, .
         items = list(value) if not isinstance(value, str | bytes | Mapping | Set) else []
     except TypeError:
         raise ValueError(message) from None
-    if not items or not all(_is_number(v) for v in items):
+    if not items or not all(is_number(v) for v in items):
         raise ValueError(message)
     numbers = tuple(float(v) for v in items)
     if not all(math.isfinite(v) and low <= v <= high for v in numbers):
@@ -71,7 +71,7 @@ def require_numbers(name: str, value, low: float, high: float) -> tuple[float, .
     return numbers
 
 
-def _is_number(value) -> bool:
+def is_number(value) -> bool:
     """A real number, not a bool (np.number would take complex ones too)."""
     return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
 
@@ -121,7 +121,7 @@ def option_xy(key, value) -> np.ndarray:
 
 
 def option_angle(key, value) -> float:
-    if not _is_number(value) or not math.isfinite(value):
+    if not is_number(value) or not math.isfinite(value):
         raise ValueError(f"reset option {key} must be a finite angle (rad), got {value!r}")
     return float(value)
 
@@ -146,7 +146,7 @@ def as_action(action, shape: tuple[int, ...]) -> np.ndarray:
 
 def _real_numbers(array: np.ndarray) -> bool:
     if array.dtype.kind == "O":  # a list mixing types: each element as it is
-        return all(_is_number(v) or isinstance(v, bool | np.bool_) for v in array.flat)
+        return all(is_number(v) or isinstance(v, bool | np.bool_) for v in array.flat)
     return array.dtype.kind in "biuf"
 
 

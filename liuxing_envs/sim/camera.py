@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -37,6 +36,7 @@ from liuxing_envs.perception.pointcloud import (
     transform_points,
 )
 from liuxing_envs.sim.scene import WRIST_CAMERA
+from liuxing_envs.validation import is_number
 
 __all__ = [
     "BACKENDS",
@@ -281,10 +281,6 @@ def grazing_mask(
     return valid & has_u & has_v & (n_sq > 0) & steep
 
 
-def _is_real(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
-
 @dataclass(frozen=True, kw_only=True)
 class DepthNoise:
     """A simple per-pixel depth-sensor noise model; every effect is off by default.
@@ -317,18 +313,18 @@ class DepthNoise:
             ("quantization", "m"),
         ):
             value = getattr(self, name)
-            if not (_is_real(value) and math.isfinite(value) and value >= 0.0):
+            if not (is_number(value) and math.isfinite(value) and value >= 0.0):
                 raise ValueError(
                     f"DepthNoise.{name} must be a finite number >= 0 ({unit}), got {value!r}"
                 )
         angle = self.grazing_dropout_deg
-        if angle is not None and not (_is_real(angle) and math.isfinite(angle) and 0 < angle < 90):
+        if angle is not None and not (is_number(angle) and math.isfinite(angle) and 0 < angle < 90):
             raise ValueError(
                 "DepthNoise.grazing_dropout_deg must be None (off) or in the open interval "
                 f"(0, 90) degrees, got {angle!r}"
             )
         probability = self.dropout_prob
-        if not (_is_real(probability) and math.isfinite(probability) and 0 <= probability <= 1):
+        if not (is_number(probability) and math.isfinite(probability) and 0 <= probability <= 1):
             raise ValueError(
                 f"DepthNoise.dropout_prob must be in [0, 1], got {self.dropout_prob!r}"
             )
