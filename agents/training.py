@@ -148,6 +148,16 @@ def resolve_config(
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
+    # The same env kwarg in --hyperparams env_kwargs.X and in --env-kwargs: which one wins
+    # would be a silent rule of precedence between two flags of one command line.
+    from_hyperparams = (hyperparams or {}).get("env_kwargs")
+    from_hyperparams = from_hyperparams if isinstance(from_hyperparams, Mapping) else {}
+    given_twice = sorted(str(key) for key in set(from_hyperparams) & set(env_kwargs or {}))
+    if given_twice:
+        raise ConfigError(
+            f"env kwargs {given_twice} are given both in --hyperparams env_kwargs and in "
+            "--env-kwargs; give each setting once"
+        )
     merged = deep_update(default_hyperparams(algo, env_id, config_file), hyperparams or {})
     harness, algo_kwargs = split_hyperparams(merged, ALGO_CLASSES[algo])
     for key in ("env_kwargs", "eval_env_kwargs"):

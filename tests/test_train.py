@@ -171,6 +171,10 @@ def test_a_python_expression_stays_a_string():
         (["--seed", "5000000000"], "seed must be an integer in [0, 4294967295], got 5000000000"),
         (["--hyperparams", "env_kwargs={5: 1}"], "unknown env kwarg 5 for ViewPlanning-v0"),
         (
+            ["--hyperparams", "env_kwargs.view_budget=6", "--env-kwargs", "view_budget=5"],
+            "env kwargs ['view_budget'] are given both in --hyperparams env_kwargs and in",
+        ),
+        (
             ["--hyperparams", "policy_kwargs.activation_fn=[[1]]"],
             "unknown activation function [[1]]",
         ),
