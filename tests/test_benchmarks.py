@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 import benchmarks.__main__ as bench_cli
-from benchmarks import scaling
+from benchmarks import scaling, time_split
 from benchmarks.isolated import describe_cores
 from benchmarks.throughput import VIEW_DEFAULT
 from benchmarks.time_split import PhaseTimer
@@ -21,26 +21,29 @@ from liuxing_envs.envs.instrument_grasp import DEFAULT_CONTROL_HZ, DEFAULT_TIMES
 from tests.scripts import run_script
 
 
-def test_phase_timer_counts_nested_time_once():
+def test_phase_timer_counts_nested_time_once(monkeypatch):
+    # A fake clock that the work advances: exact, where sleeping was at the mercy of a loaded
+    # machine's scheduler.
+    clock = [0.0]
+    monkeypatch.setattr(time_split, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
+
     class Work:
         def outer(self):
-            time.sleep(0.02)
+            clock[0] += 0.02
             self.inner()
+            clock[0] += 0.005
 
         def inner(self):
-            time.sleep(0.2)
+            clock[0] += 0.2
 
     work, timer = Work(), PhaseTimer()
     timer.wrap(work, "outer", "outer")
     timer.wrap(work, "inner", "inner")
-    start = time.perf_counter()
     work.outer()
-    elapsed = time.perf_counter() - start
-    # Margins far below the 0.2 s that counting inner's sleep twice would add: a loaded CI
-    # machine oversleeps and preempts by milliseconds.
-    assert timer.seconds["inner"] >= 0.2
-    assert 0.02 <= timer.seconds["outer"] < 0.1  # its own sleep, not inner's
-    assert sum(timer.seconds.values()) == pytest.approx(elapsed, abs=0.05)
+    work.inner()
+    # Counting inner's time in outer's too would give outer 0.225 and a total of 0.625.
+    assert timer.seconds == {"outer": pytest.approx(0.025), "inner": pytest.approx(0.4)}
+    assert clock[0] == pytest.approx(sum(timer.seconds.values()))
 
 
 @pytest.mark.slow

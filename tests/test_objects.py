@@ -588,9 +588,20 @@ def test_a_mesh_in_many_pieces_is_sampled_with_a_warning():
     offsets = np.repeat(0.02 * np.arange(70), len(cube.vertices))[:, None] * [1.0, 0.0, 0.0]
     vertices = np.tile(cube.vertices, (70, 1)) + offsets
     faces = (cube.faces[None] + len(cube.vertices) * np.arange(70)[:, None, None]).reshape(-1, 3)
+    mesh = ObjectMesh("shards", vertices, faces)
     with pytest.warns(UserWarning, match="70 separate parts"):
-        points, _ = surface_samples(ObjectMesh("shards", vertices, faces), 1000, 0)
+        points, _ = surface_samples(mesh, 1000, 0)
     assert points.shape == (1000, 3)
+    # Every cube is sampled, about in proportion to its area (1000 / 70 each), and every
+    # sample lies on a cube's surface.
+    corners = np.asarray(mesh.vertices).reshape(70, -1, 3)
+    low, high = corners.min(axis=1), corners.max(axis=1)
+    cube = np.clip(np.searchsorted(low[:, 0], points[:, 0], side="right") - 1, 0, 69)
+    assert np.all((points >= low[cube] - 1e-9) & (points <= high[cube] + 1e-9))
+    on_a_face = np.isclose(points, low[cube], atol=1e-9) | np.isclose(points, high[cube], atol=1e-9)
+    assert on_a_face.any(axis=1).all()
+    per_cube = np.bincount(cube, minlength=70)
+    assert per_cube.min() >= 3 and per_cube.max() <= 30
 
 
 def _seen_in_image(name, scale, count, half_angle, min_depth):

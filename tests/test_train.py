@@ -105,6 +105,16 @@ def test_a_setting_given_twice_is_refused_whatever_the_order(items, message):
         parse_assignments(items, "--hyperparams")
 
 
+def test_the_default_run_is_the_one_the_readme_describes():
+    """`python train.py` with no flags (the README's main job): PPO on ViewPlanning-v0 for
+    80,000 steps on the procedural training shapes, then 50 held-out comparison episodes."""
+    config = training.resolve_config()
+    assert (config["env_id"], config["algo"], config["seed"]) == ("ViewPlanning-v0", "ppo", 0)
+    assert (config["n_timesteps"], config["final_episodes"]) == (80_000, 50)
+    assert config["env_kwargs"]["object_set"] == "procedural"
+    assert config["vec_env"] == "dummy"  # its envs stepped in one process (README: Speed)
+
+
 @pytest.mark.parametrize("script", ["train", "evaluate"])
 def test_repeated_key_value_flags_add_up(script):
     """argparse's default keeps only a flag's last group: the earlier settings were dropped."""
@@ -457,6 +467,14 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
     comparison = json.loads((run_dir / run_folder.RESULT).read_text())["comparison"]
     assert comparison["policy"]["episodes"] == comparison["baseline"]["episodes"] == 2
     assert 0.0 <= comparison["policy"]["mean"] <= 1.0
+    # On the held-out split, and for ViewPlanning-v0 with the oracle beside them for scale.
+    split = "object_set" if env_id == "ViewPlanning-v0" else "instrument_set"
+    assert comparison["split"] == {split: "held_out"}
+    if env_id == "ViewPlanning-v0":
+        assert comparison["reference"]["name"] == "greedy-oracle"
+        assert comparison["reference"]["episodes"] == 2
+    else:
+        assert "reference" not in comparison
     normalised = config["normalize"]
     assert (run_dir / run_folder.FINAL_NORMALIZER).is_file() == normalised
     if algo == "sac":
@@ -800,10 +818,13 @@ def test_a_run_stopped_half_way_through_a_rollout_counts_its_episodes_once(tmp_p
 def test_each_start_of_training_writes_monitor_files_of_its_own(tmp_path, monkeypatch):
     """Named by whole seconds, the files of a resume within the second its run stopped in
     replaced the run's own (a learning curve that lost its first episodes, once in CI)."""
+    import itertools
     import types
 
-    # The same second for agents.training alone (patched everywhere, it stalled other code).
-    frozen = types.SimpleNamespace(time=lambda: 1_700_000_000.0, time_ns=time.time_ns)
+    # The same second for agents.training alone (patched everywhere, it stalled other code),
+    # and a nanosecond clock that ticks once per reading.
+    ticks = itertools.count(1_700_000_000 * 10**9)
+    frozen = types.SimpleNamespace(time=lambda: 1_700_000_000.0, time_ns=lambda: next(ticks))
     monkeypatch.setattr(training, "time", frozen)
     config = training.resolve_config(
         env_id="InstrumentGrasp-v0", algo="ppo", hyperparams={"n_envs": 1}
