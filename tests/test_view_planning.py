@@ -203,6 +203,135 @@ def test_unreachable_view_is_refused_and_penalised():
     env.close()
 
 
+#: Seed 1 (the mug) reaches the first view and refuses the second (beyond the arm's reach).
+REACHED_VIEW = (np.deg2rad(60.0), np.deg2rad(50.0), 0.36)
+REFUSED_VIEW = (np.deg2rad(-30.0), np.deg2rad(20.0), 0.45)
+#: The keys the docstring lists for reset()'s info; a step's info adds the other four.
+RESET_INFO_KEYS = {
+    "coverage",
+    "coverage_gain",
+    "views_used",
+    "reachable",
+    "refused",
+    "path_length",
+    "is_success",
+    "object",
+    "scale",
+    "sim_unstable",
+}
+STEP_ONLY_INFO_KEYS = {"reward_coverage", "reward_motion", "reward_refusal", "viewpoint"}
+
+
+def test_reaching_success_coverage_ends_the_episode_only_when_asked():
+    """is_success is coverage >= success_coverage, at the threshold too, and the episode
+    ends there only with terminate_on_success. Catches a success clause dropped from
+    ``terminated``, an is_success stuck at False or True, and ``>`` for ``>=``."""
+    side = (np.pi / 2, np.pi / 4, 0.38)
+    plain = ViewPlanningEnv(**FAST)
+    start = plain.reset(seed=0)[1]["coverage"]
+    reached = plain.step(plain.view_to_action(*side))[-1]["coverage"]
+    assert 0.0 < start < reached < 1.0
+    plain.close()
+    for threshold in (reached, np.nextafter(reached, 1.0)):
+        for stop in (True, False):
+            env = ViewPlanningEnv(success_coverage=threshold, terminate_on_success=stop, **FAST)
+            _, info = env.reset(seed=0)
+            assert not info["is_success"]
+            _, _, terminated, truncated, info = env.step(env.view_to_action(*side))
+            assert info["coverage"] == reached and info["views_used"] == 1  # 3 views left
+            assert info["is_success"] == (threshold == reached)
+            assert terminated == (stop and threshold == reached) and not truncated
+            env.close()
+    # The start view's coverage already at the threshold: reset() reports the success.
+    env = ViewPlanningEnv(success_coverage=start, terminate_on_success=True, **FAST)
+    assert env.reset(seed=0)[1]["is_success"]
+    env.close()
+
+
+def test_budget_camera_pose_and_view_history_observations_follow_the_docstring():
+    """The vector observations, against values computed from the views requested: catches
+    a budget share that does not count down (or counts against the default budget), a
+    camera pose not relative to the centre or with a flipped axis, and a view-history entry
+    with its features swapped, unnormalised or its reached/refused flag wrong."""
+    budget = 5  # not the default 4, so a share of the default budget shows
+    env = ViewPlanningEnv(view_budget=budget, **FAST)
+    low, high = env.radius_range
+
+    def pose_of_camera():
+        position, rotation = env.camera.pose(env.data)
+        return np.concatenate([position - env.center, -rotation[:, 2], rotation[:, 1]])
+
+    obs, _ = env.reset(seed=1)
+    assert obs["budget"].tolist() == [1.0]
+    assert obs["view_history"].shape == (budget * 5,) and not obs["view_history"].any()
+    np.testing.assert_allclose(obs["camera_pose"], pose_of_camera(), atol=1e-6)
+    np.testing.assert_allclose(obs["camera_pose"][3:6], [0, 0, -1], atol=1e-5)  # looks down
+    history = np.zeros((budget, 5))
+    for used, (view, reached) in enumerate(((REACHED_VIEW, True), (REFUSED_VIEW, False)), 1):
+        before = obs["camera_pose"]
+        obs, *_, info = env.step(env.view_to_action(*view))
+        assert info["refused"] != reached
+        azimuth, elevation, radius = view
+        history[used - 1] = [
+            np.cos(azimuth),
+            np.sin(azimuth),
+            np.rad2deg(elevation) / 90.0,
+            (radius - low) / (high - low),
+            1.0 if reached else -1.0,
+        ]
+        np.testing.assert_allclose(obs["view_history"], history.ravel(), atol=1e-5)
+        assert obs["budget"][0] == pytest.approx(1.0 - used / budget)
+        pose = obs["camera_pose"]
+        if reached:
+            # At the view's point on the sphere about the centre, looking at the centre.
+            offset = radius * np.array(
+                [
+                    np.cos(elevation) * np.cos(azimuth),
+                    np.cos(elevation) * np.sin(azimuth),
+                    np.sin(elevation),
+                ]
+            )
+            np.testing.assert_allclose(pose[:3], offset, atol=1e-4)
+            np.testing.assert_allclose(pose[3:6], -offset / radius, atol=1e-4)
+        else:
+            np.testing.assert_array_equal(pose, before)  # the arm stayed
+        np.testing.assert_allclose(pose, pose_of_camera(), atol=1e-6)
+        # The image-up axis: a unit vector across the optical axis.
+        assert np.linalg.norm(pose[6:]) == pytest.approx(1.0, abs=1e-5)
+        assert pose[3:6] @ pose[6:] == pytest.approx(0.0, abs=1e-5)
+    env.close()
+
+
+def test_reward_coefficients_are_the_kwargs_and_reset_info_has_the_documented_keys():
+    """Non-default coverage_reward_scale, motion_cost and refusal_penalty, on a reached and a
+    refused view: catches a reward term that uses its DEFAULT_* constant instead of the
+    kwarg, and a reset() info with keys the docstring does not list for it."""
+    scale, cost, penalty = 3.0, 0.05, 0.7
+    env = ViewPlanningEnv(
+        coverage_reward_scale=scale, motion_cost=cost, refusal_penalty=penalty, **FAST
+    )
+    _, start = env.reset(seed=1)
+    assert set(start) == RESET_INFO_KEYS
+    assert start["coverage"] > 0 and start["coverage_gain"] == start["path_length"] == 0.0
+    infos = []
+    for view, refused in ((REACHED_VIEW, False), (REFUSED_VIEW, True)):
+        _, reward, _, _, info = env.step(env.view_to_action(*view))
+        infos.append(info)
+        assert set(info) == RESET_INFO_KEYS | STEP_ONLY_INFO_KEYS
+        assert info["refused"] == refused
+        assert info["reward_coverage"] == pytest.approx(scale * info["coverage_gain"])
+        assert info["reward_motion"] == pytest.approx(-cost * info["path_length"])
+        assert info["reward_refusal"] == (-penalty if refused else 0.0)
+        terms = info["reward_coverage"] + info["reward_motion"] + info["reward_refusal"]
+        assert reward == pytest.approx(terms)
+    assert infos[0]["coverage_gain"] > 0.1 and infos[0]["path_length"] > 0.1
+    assert infos[1]["coverage_gain"] == infos[1]["path_length"] == 0.0
+    assert sum(i["reward_coverage"] for i in infos) == pytest.approx(
+        scale * (infos[-1]["coverage"] - start["coverage"])
+    )
+    env.close()
+
+
 def test_user_meshes_load(tmp_path):
     import open3d as o3d
 
@@ -475,6 +604,27 @@ def test_a_reset_position_outside_the_workspace_is_refused(env):
         env.reset(seed=0, options={"object": "box", "position": (0.84, 0.0)})
     _, info = env.reset(seed=0, options={"object": "box", "position": (0.6, 0.2)})
     assert info["object"] == "box"
+
+
+def test_reset_options_position_and_yaw_place_the_object_there():
+    """The ``position`` and ``yaw`` options are where the object stands, whatever the seed
+    draws: catches either option being ignored for the drawn one. Checked on the placement
+    and on MuJoCo's own pose of the object's body."""
+    env = ViewPlanningEnv(**FAST)
+    options = {"object": "box", "position": (0.6, 0.2), "yaw": 0.3}
+    body = env.model.body("object_box_x1.0").id
+    for seed in (0, 1):
+        _, info = env.reset(seed=seed, options=options)
+        assert info["object"] == "box" and info["coverage"] > 0  # the start view sees it
+        np.testing.assert_allclose(env.placed.position, [0.6, 0.2, 0.0])
+        assert env.placed.yaw == pytest.approx(0.3)
+        np.testing.assert_allclose(env.data.xpos[body], [0.6, 0.2, 0.0], atol=1e-12)
+        np.testing.assert_allclose(
+            env.data.xquat[body], [np.cos(0.15), 0.0, 0.0, np.sin(0.15)], atol=1e-12
+        )
+        # The estimated centre comes from the depth image: the box is seen where it was put.
+        np.testing.assert_allclose(env.center[:2], [0.6, 0.2], atol=0.02)
+    env.close()
 
 
 def test_reset_options_are_checked_whatever_the_draw_and_a_refusal_changes_nothing():
