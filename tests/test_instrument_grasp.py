@@ -14,6 +14,7 @@ import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.grasp_baselines import Phase, PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
 from liuxing_envs.envs.instrument_grasp import (
     DEFAULT_FORCE_LIMIT,
+    FORCE_SAMPLE_SUBSTEPS,
     GRASP_FORCE_THRESHOLD,
     READY_OPENING,
     READY_TCP,
@@ -33,6 +34,12 @@ REWARD_TERMS = (
     "reward_failure",
     "reward_success",
 )
+
+
+class PrivilegedSqueeze(PrivilegedGrasp):
+    """Squeeze's full close on the privileged expert: runs in the cheap state observation."""
+
+    squeeze = True
 
 
 def run_policy(env, policy, seed):
@@ -111,6 +118,170 @@ def test_reach_term_follows_its_sharpness(sharpness):
     env.close()
 
 
+#: MuJoCo's own physics step, for MeasuredEpisode's patched one to call.
+PHYSICS_STEP = mujoco.mj_step
+#: The docstring's defaults of the reward's settings; a test's kwargs override them.
+REWARD_DEFAULTS = {
+    "force_limit": 5.0,
+    "hard_limit_factor": 3.0,
+    "impact_limit": 10.0,
+    "target_height": 0.1,
+    "reach_sharpness": 10.0,
+    "force_penalty": 0.2,
+    "impact_penalty": 0.05,
+    "failure_penalty": 5.0,
+}
+
+
+class MeasuredEpisode:
+    """Steps an env while reading its sensors as the physics runs, for checking each reward term
+    against the docstring's formula: the left and right pad forces (touch sensors) and the
+    impact at every force sample (each FORCE_SAMPLE_SUBSTEPS physics steps of the control step),
+    and the grasp, lift and distance from the simulator after it. Nothing is read from the
+    env's reward code."""
+
+    def __init__(self, monkeypatch, seed, options=None, **kwargs):
+        self.env = InstrumentGraspEnv(**kwargs)
+        self.settings = {**REWARD_DEFAULTS, **kwargs}
+        self.observation, _ = self.env.reset(seed=seed, options=options)
+        self.start_height = self.env.world.grasp_point()[2]
+        self.steps = []  # (peaks (left, right, impact), info, terminated) of each step
+        self._samples = []
+
+        def sampled_step(model, data, *args, **kw):
+            PHYSICS_STEP(model, data, *args, **kw)
+            world = self.env.world
+            if data is world.data:
+                forces = world.gripper.fingertip_forces()
+                self._samples.append((data.time, *forces, world.impact_force()))
+
+        monkeypatch.setattr(mujoco, "mj_step", sampled_step)
+
+    def step(self, action):
+        world, settings = self.env.world, self.settings
+        start, timestep = world.data.time, world.model.opt.timestep
+        self._samples.clear()
+        self.observation, reward, terminated, truncated, info = self.env.step(action)
+        samples = [
+            values
+            for time, *values in self._samples
+            if round((time - start) / timestep) % FORCE_SAMPLE_SUBSTEPS == 0
+        ]
+        left, right, impact = peaks = np.max(samples, axis=0)
+        self.steps.append((peaks, info, terminated))
+
+        limit, impact_limit = settings["force_limit"], settings["impact_limit"]
+        grasped = bool(np.all(world.gripper.pad_forces_on(world.body) >= GRASP_FORCE_THRESHOLD))
+        lift = world.grasp_point()[2] - self.start_height
+        distance = np.linalg.norm(world.tcp_position() - world.grasp_point())
+        stop = max(left, right) > settings["hard_limit_factor"] * limit or (
+            impact > settings["hard_limit_factor"] * impact_limit
+        )
+        assert info["grasped"] == grasped and info["lift_height"] == pytest.approx(lift)
+        assert info["step_peak_force"] == pytest.approx(max(left, right))
+        expected = {
+            "reward_reach": 1.0 - np.tanh(settings["reach_sharpness"] * distance),
+            "reward_grasp": float(grasped),
+            "reward_lift": 2.0 * min(1.0, max(lift, 0.0) / settings["target_height"])
+            if grasped
+            else 0.0,
+            "reward_hold": float(grasped and lift >= settings["target_height"]),
+            "reward_force": -settings["force_penalty"]
+            * (max(0.0, left - limit) + max(0.0, right - limit)),
+            "reward_impact": -settings["impact_penalty"] * max(0.0, impact - impact_limit),
+            "reward_failure": -settings["failure_penalty"] if stop else 0.0,
+        }
+        for term, value in expected.items():
+            assert info[term] == pytest.approx(value, rel=1e-6, abs=1e-9), (term, len(self.steps))
+        assert info["hard_limit_exceeded"] == stop and terminated == stop and not truncated
+        assert reward == pytest.approx(sum(expected.values()), abs=1e-9)
+        # The counters: control steps whose peak went over the limit, so far.
+        peaks_so_far = np.array([step[0] for step in self.steps])
+        assert info["force_violations"] == np.sum(peaks_so_far[:, :2].max(axis=1) > limit)
+        assert info["impact_violations"] == np.sum(peaks_so_far[:, 2] > impact_limit)
+        return info, terminated
+
+
+def test_each_reward_term_follows_its_formula_over_a_grasp_and_a_squeeze(monkeypatch):
+    """Only the reach term was compared with its formula: a lift term paying 1 instead of 2, a
+    force term for one pad alone, or the default target height or penalties in place of the
+    kwargs went unnoticed. Non-default kwargs, so a constant in their place fails."""
+    kwargs = {"target_height": 0.07, "reach_sharpness": 6.0, "force_penalty": 0.3}
+    episode = MeasuredEpisode(monkeypatch, seed=0, failure_penalty=4.0, **kwargs)
+    expert = PrivilegedGrasp(episode.env)
+    for _ in range(100):  # grasped at step 53, at height from 61, held to the end
+        info, terminated = episode.step(expert.predict(episode.observation)[0])
+        assert not terminated
+    assert info["is_success"]
+    infos = [info for _, info, _ in episode.steps]
+    assert sum(info["reward_grasp"] == 1.0 for info in infos) > 40
+    assert sum(0.0 < info["reward_lift"] < 2.0 for info in infos) >= 3  # on the way up
+    assert sum(info["reward_lift"] == 2.0 for info in infos) >= 30  # at and above 7 cm
+    assert sum(info["reward_hold"] == 1.0 for info in infos) >= 30
+    assert all(info["reward_force"] == 0.0 for info in infos)
+    # Let go: the next step the instrument is still 12 cm up, no longer grasped.
+    info, _ = episode.step(np.array([0, 0, 0, 0, 1], np.float32))
+    assert not info["grasped"] and info["lift_height"] > kwargs["target_height"]
+    assert info["reward_lift"] == info["reward_hold"] == 0.0
+
+    # The full close: both pads over the limit (by 172 and 0.8 N) trip the protective stop.
+    episode = MeasuredEpisode(monkeypatch, seed=0, failure_penalty=4.0, **kwargs)
+    expert = PrivilegedSqueeze(episode.env)
+    for _ in range(100):
+        info, terminated = episode.step(expert.predict(episode.observation)[0])
+        if terminated:
+            break
+    (left, right, _), _, _ = episode.steps[-1]
+    assert terminated and min(left, right) > DEFAULT_FORCE_LIMIT
+    assert info["reward_force"] < 0.0 and info["reward_failure"] == -4.0
+
+
+def push_down_on_the_handle(monkeypatch, **kwargs):
+    """Closed jaws pushed down onto the retractor's handle by a compliant arm: one step of
+    impact on the tray (24 N; the pads 9 and 13 N), then 3-7 N resting on it."""
+    episode = MeasuredEpisode(
+        monkeypatch,
+        seed=0,
+        options={"tool_start": [0.0, 0.0, 0.02]},
+        gripper_control="force",
+        arm_stiffness=0.1,
+        **kwargs,
+    )
+    for step in range(25):
+        down = -0.5 if step >= 5 else 0.0  # 1 cm per step, once the jaws have closed
+        _, terminated = episode.step(np.array([0, 0, down, 0, 1], np.float32))
+        if terminated:
+            break
+    return episode
+
+
+def test_impact_is_penalised_over_its_limit_and_stops_the_arm_at_the_hard_limit(monkeypatch):
+    """The impact stop, reward_impact and the force and impact violation counters had no test:
+    an impact stop that never ends the episode, the default penalty or hard limit factor in
+    place of the kwargs, or a counter stuck at 0, went unnoticed."""
+    # Hard limits out of reach (6 x): penalised and counted, no stop.
+    episode = push_down_on_the_handle(
+        monkeypatch, impact_limit=4.5, impact_penalty=0.07, hard_limit_factor=6.0
+    )
+    peaks = np.array([step[0] for step in episode.steps])
+    infos = [info for _, info, _ in episode.steps]
+    assert len(episode.steps) == 25 and not any(terminated for *_, terminated in episode.steps)
+    assert peaks[:, 2].max() > 3 * 4.5  # would have stopped at the default factor
+    over = peaks[:, 2] > 4.5
+    assert 3 <= over.sum() < np.sum(peaks[:, 2] > 0.0)  # some of the touching steps, not all
+    assert all((info["reward_impact"] < 0.0) == o for info, o in zip(infos, over, strict=True))
+    assert infos[-1]["impact_violations"] == over.sum()
+    assert infos[-1]["force_violations"] == 1  # the strike, both pads over 5 N
+    assert peaks[peaks[:, 2].argmax(), :2].min() > DEFAULT_FORCE_LIMIT  # the force term sums two
+
+    # The same strike at 3 x: over the impact's hard limit, the pads under theirs.
+    episode = push_down_on_the_handle(monkeypatch, impact_limit=4.5, impact_penalty=0.07)
+    (left, right, impact), info, terminated = episode.steps[-1]
+    assert terminated and info["hard_limit_exceeded"] and info["reward_failure"] == -5.0
+    assert impact > 3 * 4.5 and max(left, right) < 3 * DEFAULT_FORCE_LIMIT
+    assert info["reward_impact"] < 0.0 and info["impact_violations"] == 1
+
+
 def test_scripted_grasp_lifts_gently_and_squeeze_breaks_the_limit():
     env = gym.make("InstrumentGrasp-v0", obs_mode="rgbd")
     for seed in (0, 11):
@@ -125,19 +296,31 @@ def test_scripted_grasp_lifts_gently_and_squeeze_breaks_the_limit():
         assert info["peak_force"] > DEFAULT_FORCE_LIMIT
         assert min(step["reward_force"] for step in infos) < 0.0
         assert info["hard_limit_exceeded"] and info["reward_failure"] < 0.0
-        # The protective stop's own physics steps count towards the peaks.
-        assert info["step_peak_force"] >= info["grip_force"]
     env.close()
 
 
-def test_privileged_grasp_lifts_gently_and_refuses_joint_control():
-    env = gym.make("InstrumentGrasp-v0", instrument_set="held_out")
+@pytest.mark.parametrize("instrument_set", ["train", "held_out"])
+@pytest.mark.parametrize("gripper_control", ["opening", "delta", "force"])
+def test_privileged_expert_grasps_gently_with_every_gripper_control(
+    gripper_control, instrument_set
+):
+    """The expert that seeds SAC's replay buffer must succeed within the force limit with each
+    gripper control, on the training and the held-out instruments."""
+    env = gym.make(
+        "InstrumentGrasp-v0", gripper_control=gripper_control, instrument_set=instrument_set
+    )
     for seed in (0, 11):
-        info, infos = run_policy(env, PrivilegedGrasp(env), seed)
+        info, _ = run_policy(env, PrivilegedGrasp(env), seed)
         assert info["is_success"], info
         assert info["peak_force"] <= DEFAULT_FORCE_LIMIT and not info["hard_limit_exceeded"]
     env.close()
-    with pytest.raises(ValueError, match="controller"):
+
+
+def test_privileged_grasp_refuses_joint_control():
+    with pytest.raises(
+        ValueError,
+        match=r"PrivilegedGrasp needs \{'controller': 'ee_delta'\}, got .*controller='joint_delta'",
+    ):
         PrivilegedGrasp(gym.make("InstrumentGrasp-v0", controller="joint_delta"))
 
 
@@ -158,20 +341,24 @@ def test_privileged_grasp_acts_the_same_when_the_observation_is_depth():
     np.testing.assert_array_equal(actions["depth"], actions["state"])
 
 
-def test_success_needs_the_hold_time_and_terminate_on_success_pays_the_rest():
-    env = gym.make("InstrumentGrasp-v0", obs_mode="rgbd", terminate_on_success=True)
-    info, infos = run_policy(env, ScriptedGrasp(env), 0)
-    assert info["is_success"] and len(infos) < 200
+@pytest.mark.parametrize("steps", [200, 120])
+def test_success_needs_the_hold_time_and_terminate_on_success_pays_the_rest(steps):
+    """The bonus pays 5 a step up to episode_steps: at 120 it counted to 200 (fixed within v0)."""
+    env = gym.make(
+        "InstrumentGrasp-v0",
+        terminate_on_success=True,
+        episode_steps=steps,
+        max_episode_steps=steps,
+    )
+    info, infos = run_policy(env, PrivilegedGrasp(env), 0)
+    assert info["is_success"] and len(infos) < steps
     steps_at_height = sum(1 for step in infos if step["reward_hold"] > 0)
     assert steps_at_height == 20  # 1 s at 20 Hz, then it ends
-    assert info["reward_success"] == pytest.approx(5.0 * (200 - len(infos)))
+    assert info["reward_success"] == pytest.approx(5.0 * (steps - len(infos)))
     assert not any(step["is_success"] for step in infos[:-1])
 
 
 def test_a_protective_stop_counts_its_last_physics_steps_in_the_peaks():
-    class PrivilegedSqueeze(PrivilegedGrasp):
-        squeeze = True
-
     env = InstrumentGraspEnv()
     expert = PrivilegedSqueeze(env)
     observation, _ = env.reset(seed=1)
@@ -395,23 +582,35 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"obs_mode": "pixels"}, "obs_mode"),
-        ({"controller": "torque"}, "controller"),
-        ({"instrument_set": "test"}, "instrument_set"),
-        ({"instruments": ["spoon"]}, "instruments"),
+        ({"obs_mode": "pixels"}, r"obs_mode='pixels' is not allowed; choose one of \['state', "),
+        ({"controller": "torque"}, r"controller='torque' is not allowed; choose one of \["),
+        ({"instrument_set": "test"}, r"instrument_set='test' is not allowed; choose one of"),
+        (
+            {"instruments": ["spoon"]},
+            r"instruments must be a non-empty list of names from .*'spoon'",
+        ),
         ({"instruments": ["scalpel", "scalpel"]}, "instruments must be unique"),
-        ({"force_limit": -1.0}, "force_limit"),
-        ({"force_limit": float("nan")}, "force_limit"),
-        ({"control_hz": 30.0}, "control_hz"),
-        ({"mass_range": (2.0, 1.0)}, "mass_range"),
+        ({"force_limit": -1.0}, r"force_limit must be a number in \[0.1, 100.0\], got -1.0"),
+        ({"force_limit": float("nan")}, r"force_limit must be a number in \[0.1, 100.0\], got nan"),
+        (
+            {"control_hz": 30.0},
+            r"1 / control_hz must be a whole number of timesteps; got control_hz=30.0",
+        ),
+        ({"mass_range": (2.0, 1.0)}, r"mass_range must satisfy 0.1 <= min <= max <= 10.0"),
         ({"friction_range": "12"}, "friction_range must be a pair of numbers"),
-        ({"resolution": 64.5}, "resolution"),
-        ({"terminate_on_success": "yes"}, "terminate_on_success"),
-        ({"reach_sharpness": 0.0}, "reach_sharpness"),
-        ({"gripper_control": "velocity"}, "gripper_control"),
-        ({"max_gripper_delta": 0.5}, "max_gripper_delta"),
-        ({"max_grip_force": 50.0}, "max_grip_force"),
-        ({"arm_stiffness": 0.0}, "arm_stiffness"),
+        ({"resolution": 64.5}, r"resolution must be an integer in \[8, 512\], got 64.5"),
+        (
+            {"terminate_on_success": "yes"},
+            r"terminate_on_success='yes' is not allowed; choose one of \[False, True\]",
+        ),
+        ({"reach_sharpness": 0.0}, r"reach_sharpness must be a number in \[0.1, 100.0\]"),
+        (
+            {"gripper_control": "velocity"},
+            r"gripper_control='velocity' is not allowed; choose one of \['opening'",
+        ),
+        ({"max_gripper_delta": 0.5}, r"max_gripper_delta must be a number in \[0.0001, 0.08\]"),
+        ({"max_grip_force": 50.0}, r"max_grip_force must be a number in \[0.1, 40.0\]"),
+        ({"arm_stiffness": 0.0}, r"arm_stiffness must be a number in \[0.01, 1.0\]"),
         # An array is not a choice: one element passed as it, more raised numpy's error.
         ({"controller": np.array(["ee_delta"])}, r"controller=array\(\['ee_delta'\].* choose"),
         ({"obs_mode": np.array(["state", "depth"])}, r"obs_mode=array.* choose one of"),
@@ -469,14 +668,6 @@ def test_delta_gripper_control_moves_the_commanded_opening_by_the_action():
         observation, *_ = env.step(np.zeros(5, dtype=np.float32))
     assert observation["proprio"][18] == pytest.approx(0.054, abs=1e-6)
     assert observation["proprio"][17] == pytest.approx(0.054, abs=5e-4)
-    env.close()
-
-
-@pytest.mark.parametrize("gripper_control", ["delta", "force"])
-def test_privileged_expert_grasps_as_gently_with_every_gripper_control(gripper_control):
-    env = gym.make("InstrumentGrasp-v0", gripper_control=gripper_control)
-    info, _ = run_policy(env, PrivilegedGrasp(env), 0)
-    assert info["is_success"] and info["peak_force"] <= DEFAULT_FORCE_LIMIT
     env.close()
 
 
