@@ -212,6 +212,7 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
             assert episode["hard_limit_exceeded"] == (max(episode["force_trace"]) > 15.0)
     # Squeezing trips the hard limit; the gentle script lifts without going over the limit.
     assert by_label["squeeze"]["summary"]["hard_limit_exceeded"]["rate"] == 1.0
+    assert by_label["squeeze"]["summary"]["over_force_limit"]["count"] == 2  # a count, not 0
     scripted = by_label["scripted-grasp"]["summary"]
     assert scripted["success"]["rate"] == 1.0 and scripted["over_force_limit"]["count"] == 0
     assert scripted["max_lift"]["mean"] >= 0.10
