@@ -100,7 +100,8 @@ class GreedyOracle(ScriptedPolicy):
 def action_for_view(env, azimuth: float, elevation: float, radius: float):
     """The env's action for a view: continuous encoding, or the nearest discrete candidate."""
     if env.action_mode == "continuous":
-        return env.view_to_action(azimuth, elevation, radius)
+        # Under ranges narrowed by env kwargs, a scripted view is taken at the nearest one.
+        return env.view_to_action(azimuth, elevation, radius, clip=True)
     candidates = np.array(env.candidate_views)
     target = _unit_direction(azimuth, elevation)
     directions = np.array([_unit_direction(a, e) for a, e, _ in candidates])

@@ -64,3 +64,36 @@ def require_opengl(name: str, value, instead: str) -> None:
             f"(MUJOCO_GL={os.environ.get('MUJOCO_GL', '')!r}): set MUJOCO_GL to egl, osmesa or "
             f"glfw before mujoco is imported, or use {name}={instead}"
         )
+
+
+#: Whether this process has made an OpenGL context, and whether it was forked from one that
+#: had: the child inherits the driver's threads and locks half-copied, and its first context
+#: or render then waits forever (no error, no timeout).
+_made_context = False
+_forked_after_context = False
+
+
+def _after_fork_in_child() -> None:
+    global _forked_after_context
+    _forked_after_context = True
+
+
+def new_renderer(model, height: int, width: int):
+    """A :class:`mujoco.Renderer` of ``model``: refused with a RuntimeError naming the fix in
+    a process forked from one that had made an OpenGL context, where it would hang."""
+    global _made_context
+    if _forked_after_context:
+        raise RuntimeError(
+            "this process was forked from one that had made an OpenGL context, and OpenGL "
+            "hangs in such a child: start worker processes with spawn (gym.make_vec(..., "
+            "vectorization_mode='async', vector_kwargs={'context': 'spawn'}); SB3's "
+            "SubprocVecEnv(..., start_method='spawn')), or make the envs before anything "
+            "renders, or use depth_backend='raycast'"
+        )
+    import mujoco
+
+    renderer = mujoco.Renderer(model, height=height, width=width)
+    if not _made_context:
+        _made_context = True
+        os.register_at_fork(after_in_child=_after_fork_in_child)
+    return renderer

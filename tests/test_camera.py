@@ -788,6 +788,45 @@ def test_auto_backend_picks_gl_here(box_model):
     camera.close()
 
 
+def _make_cameras_in_a_forked_child(model, results) -> None:
+    outcome = {}
+    try:
+        DepthCamera(model, backend="gl")
+    except RuntimeError as error:
+        outcome["gl"] = str(error)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome["auto"] = DepthCamera(model).backend
+    outcome["warning"] = " ".join(str(w.message) for w in caught)
+    results.put(outcome)
+
+
+def test_a_process_forked_after_an_opengl_context_refuses_gl_instead_of_hanging(box_model):
+    """A child forked from a process that had made an OpenGL context waited forever for its
+    own (an async vector env made after a render): it now refuses gl, naming spawn, and auto
+    falls back to ray casting."""
+    import multiprocessing
+
+    with DepthCamera(box_model, backend="gl") as camera:
+        camera.render(_data_at(box_model))
+    fork = multiprocessing.get_context("fork")
+    results = fork.Queue()
+    child = fork.Process(target=_make_cameras_in_a_forked_child, args=(box_model, results))
+    child.start()
+    try:
+        outcome = results.get(timeout=120)
+    finally:
+        child.join(timeout=10)
+        if child.is_alive():
+            child.kill()
+    assert "forked from one that had made an OpenGL context" in outcome["gl"]
+    assert "vector_kwargs={'context': 'spawn'}" in outcome["gl"]
+    assert outcome["auto"] == "raycast" and "forked from one" in outcome["warning"]
+    # The parent itself still renders with OpenGL.
+    with DepthCamera(box_model, backend="gl") as camera:
+        assert np.isfinite(camera.render(_data_at(box_model))).any()
+
+
 def test_close_is_idempotent_and_final(box_model):
     data = _data_at(box_model)
     for backend in ("gl", "raycast"):

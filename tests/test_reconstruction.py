@@ -210,6 +210,24 @@ def test_save_writes_readable_files(sphere_scan, tmp_path):
     np.testing.assert_allclose(np.asarray(mesh.vertices), result.vertices, atol=1e-6)
 
 
+def test_a_record_pickles_and_comes_back_the_same(sphere_scan):
+    """open3d's geometries do not pickle: a vector env's call("reconstruct") killed its
+    worker sending the record back, and the vector env with it."""
+    import pickle
+
+    result, gt = sphere_scan
+    copy = pickle.loads(pickle.dumps(result))
+    for name in ("points", "vertices", "triangles"):
+        np.testing.assert_array_equal(getattr(copy, name), getattr(result, name))
+    np.testing.assert_array_equal(np.asarray(copy.cloud.normals), np.asarray(result.cloud.normals))
+    assert copy.summary() == result.summary() and copy.metrics(gt) == result.metrics(gt)
+    few = reconstruct(sphere(np.random.default_rng(5), 30))  # a cloud, no mesh
+    again = pickle.loads(pickle.dumps(few))
+    assert not again.has_mesh and again.message == few.message
+    np.testing.assert_array_equal(again.points, few.points)
+    assert len(again.mesh.vertices) == 0
+
+
 def test_metrics_on_known_configurations():
     rng = np.random.default_rng(6)
     gt = sphere(rng, 4000)

@@ -472,6 +472,30 @@ def test_step_before_reset_is_an_error():
     env.close()
 
 
+def test_view_to_action_refuses_a_view_no_action_requests_unless_told_to_clip():
+    """It clipped silently: a viewpoint logged in degrees (info["viewpoint"]) and passed back
+    requested another view. Within the ranges it maps onto the action's [-1, 1] exactly."""
+    env = ViewPlanningEnv(**FAST)
+    low_az, low_el, low_r = env.azimuth_range[0], env.elevation_range[0], env.radius_range[0]
+    high = (env.azimuth_range[1] - 2 * np.pi, env.elevation_range[1], env.radius_range[1])
+    np.testing.assert_array_equal(env.view_to_action(low_az, low_el, low_r), [-1, -1, -1])
+    np.testing.assert_array_equal(env.view_to_action(*high)[1:], [1, 1])
+    middle = env.view_to_action(4 * np.pi, np.deg2rad(55.0), 0.375)  # two whole turns: 0 rad
+    np.testing.assert_allclose(middle, [0.0, 0.0, 0.0], atol=1e-7)
+    for view, shown in (
+        ((90.0, 55.0, 0.375), "elevation 3151 deg"),  # degrees passed for radians
+        ((0.0, 1.2, 5.0), "radius 5 m"),
+        ((0.0, np.deg2rad(10.0), 0.35), "elevation 10 deg"),
+    ):
+        with pytest.raises(ValueError, match=f"{shown}.*outside the action's ranges"):
+            env.view_to_action(*view)
+    with pytest.raises(ValueError, match="finite"):
+        env.view_to_action(0.0, np.nan, 0.35)
+    clipped = env.view_to_action(0.0, np.deg2rad(10.0), 5.0, clip=True)
+    np.testing.assert_array_equal(clipped[1:], [-1.0, 1.0])
+    env.close()
+
+
 def test_pickles_and_vectorises():
     env = ViewPlanningEnv(**FAST)
     env.reset(seed=4)

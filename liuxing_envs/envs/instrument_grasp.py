@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.opengl import require_opengl
+from liuxing_envs.opengl import new_renderer, require_opengl
 from liuxing_envs.sim.arm import Arm
 from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
 from liuxing_envs.sim.gripper import (
@@ -335,7 +335,10 @@ class InstrumentGraspEnv(gym.Env):
     finger into the instrument, which the settling steps shoved, or which started the episode
     at up to 208 N on a pad (now raised clear); numpy arrays as choices, complex numbers,
     dicts and sets as ranges, and actions of strings or complex numbers were taken (now
-    refused by name).
+    refused by name). Fixed within v0 (2026-11-27): in a process forked from one that had
+    made an OpenGL context (an async vector env made after a render), OpenGL hung; it is now
+    refused by name (``obs_mode="rgbd"``, ``render_mode``, ``depth_backend="gl"``) and
+    ``"auto"`` falls back to ray casting.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -677,7 +680,7 @@ class InstrumentGraspEnv(gym.Env):
             return None
         world = self.world
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(world.model, 480, 640)
+            self._renderer = new_renderer(world.model, 480, 640)
         # Pads shade from white to red with their force: the force read-out.
         forces = world.gripper.fingertip_forces()
         saved = world.model.geom_rgba[world.gripper.pad_geoms].copy()
@@ -1090,7 +1093,7 @@ class _World:
 
     def rgb(self, intrinsics: CameraIntrinsics) -> np.ndarray:
         if self._rgb is None:
-            self._rgb = mujoco.Renderer(self.model, intrinsics.height, intrinsics.width)
+            self._rgb = new_renderer(self.model, intrinsics.height, intrinsics.width)
             self._rgb.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0  # 20 ms -> 1-2 ms
         self._rgb.update_scene(self.data, camera=WRIST_CAMERA)
         return self._rgb.render()

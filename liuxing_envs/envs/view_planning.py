@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.opengl import require_opengl
+from liuxing_envs.opengl import new_renderer, require_opengl
 from liuxing_envs.perception.coverage import CoverageTracker
 from liuxing_envs.perception.free_space import FreeSpaceGrid
 from liuxing_envs.perception.fusion import VoxelMap
@@ -249,8 +249,11 @@ class ViewPlanningEnv(gym.Env):
     than ``table_crop_height`` at the smallest scale; overrides ``object_set``), ``scales``,
     ``object_region``, ``resolution`` (square depth image side),
     ``depth_backend`` ({"auto", "gl", "raycast", "embree"}; embree is the fastest, see
-    ``liuxing_envs.sim.camera``), ``depth_noise`` (a ``DepthNoise``, None, ``"realsense"``
-    for ``DepthNoise.realsense_like()``, or a mapping of its fields, as YAML gives it),
+    ``liuxing_envs.sim.camera``; in a process forked from one that had made an OpenGL
+    context, as async vector envs made after a render are, gl is refused and auto falls back
+    to raycast: pass ``vector_kwargs={"context": "spawn"}``), ``depth_noise`` (a
+    ``DepthNoise``, None, ``"realsense"`` for ``DepthNoise.realsense_like()``, or a mapping
+    of its fields, as YAML gives it),
     the action ranges above, ``coverage_samples``, ``epsilon_fraction``, ``success_coverage``,
     ``terminate_on_success``, ``coverage_reward_scale``, ``motion_cost``, ``refusal_penalty``,
     ``map_voxel_size``, ``map_grid``, ``map_extent``, ``depth_obs_range``,
@@ -302,7 +305,10 @@ class ViewPlanningEnv(gym.Env):
     C-channel or T-pipe, at some or all scales, counted although only such a view saw them,
     which capped their coverage below the success level for every agent, and 4-7% of a
     bowl's, 4% of an arch's; of a vase's, it counted 10-13% that no view of the env sees and
-    left out 14-24% that they see).
+    left out 14-24% that they see). Changed within v0 (2026-11-27; episodes unchanged):
+    ``view_to_action`` refuses a view outside the action's ranges, where it took the nearest
+    one silently (``clip=True`` keeps that), and OpenGL is refused in a process forked from
+    one that had made a context, where it hung (``"auto"`` falls back to ray casting).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -679,7 +685,7 @@ class ViewPlanningEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.model, *RENDER_SIZE)
+            self._renderer = new_renderer(self.model, *RENDER_SIZE)
         self._renderer.update_scene(self.data, camera=OVERVIEW_CAMERA)
         scene = self._renderer.scene
         _add_points(scene, self.map.points(), RENDER_MAX_POINTS)
@@ -755,8 +761,10 @@ class ViewPlanningEnv(gym.Env):
         return record, metrics
 
     def preview_view(self, azimuth: float, elevation: float, radius: float) -> dict:
-        """PRIVILEGED (uses ground truth): what taking this view now would earn, without
-        taking it. The arm is put there kinematically, a depth image is rendered (noise from
+        """PRIVILEGED (uses ground truth): what taking this view (azimuth and elevation in rad,
+        radius in m, about the estimated centre) now would earn, without taking it. Any view
+        on the sphere is scored, whether or not the continuous action's ranges can request
+        it. The arm is put there kinematically, a depth image is rendered (noise from
         a fixed seed) and scored against the ground-truth samples, and the simulation state is
         restored exactly (velocities and servo targets too, so a ``motion="dynamic"`` episode
         goes on as if no preview had happened). ``reward`` charges the plan's joint-space
@@ -834,11 +842,30 @@ class ViewPlanningEnv(gym.Env):
             self._trackers[key] = shared.fresh()
         return self._trackers[key]
 
-    def view_to_action(self, azimuth: float, elevation: float, radius: float) -> np.ndarray:
-        """The continuous action that requests view (azimuth, elevation in rad, radius in m)."""
-        azimuth = (azimuth - self.azimuth_range[0]) % (2 * np.pi) + self.azimuth_range[0]
-        values = np.array([azimuth, elevation, radius])
+    def view_to_action(
+        self, azimuth: float, elevation: float, radius: float, *, clip: bool = False
+    ) -> np.ndarray:
+        """The continuous action that requests view (azimuth and elevation in rad, radius in
+        m; ``info["viewpoint"]`` gives degrees). Azimuths wrap by whole turns. A view outside
+        the action's ranges, which no action requests, is refused with a ValueError, or with
+        ``clip`` taken at the nearest one that can be requested (the scripted baselines'
+        views under narrowed ranges)."""
+        values = np.array([azimuth, elevation, radius], dtype=float)
+        if not np.isfinite(values).all():
+            raise ValueError(f"view_to_action needs finite numbers, got {values.tolist()}")
+        values[0] = (values[0] - self.azimuth_range[0]) % (2 * np.pi) + self.azimuth_range[0]
         ranges = np.array([self.azimuth_range, self.elevation_range, self.radius_range])
+        outside = (values < ranges[:, 0] - 1e-9) | (values > ranges[:, 1] + 1e-9)
+        if outside.any() and not clip:
+            degrees = np.rad2deg(ranges[:2]).round(2).tolist()
+            raise ValueError(
+                f"view (azimuth {np.rad2deg(azimuth):.4g} deg, elevation "
+                f"{np.rad2deg(elevation):.4g} deg, radius {radius:.4g} m) lies outside the "
+                f"action's ranges (azimuth {degrees[0]} deg, elevation {degrees[1]} deg, radius "
+                f"{self.radius_range.tolist()} m), so no action requests it; view_to_action takes "
+                "radians (info['viewpoint'] is in degrees), or pass clip=True for the nearest "
+                "view that can be requested"
+            )
         scaled = 2 * (values - ranges[:, 0]) / np.maximum(ranges[:, 1] - ranges[:, 0], 1e-9) - 1
         return np.clip(scaled, -1.0, 1.0).astype(np.float32)
 

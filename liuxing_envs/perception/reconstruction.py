@@ -123,6 +123,33 @@ def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points)))
 
 
+#: The per-element arrays of open3d's geometries, with the vector type each is held in.
+_CLOUD_ARRAYS = {
+    "points": o3d.utility.Vector3dVector,
+    "normals": o3d.utility.Vector3dVector,
+    "colors": o3d.utility.Vector3dVector,
+}
+_MESH_ARRAYS = {
+    "vertices": o3d.utility.Vector3dVector,
+    "triangles": o3d.utility.Vector3iVector,
+    "vertex_normals": o3d.utility.Vector3dVector,
+    "vertex_colors": o3d.utility.Vector3dVector,
+    "triangle_normals": o3d.utility.Vector3dVector,
+}
+
+
+def _geometry_arrays(geometry, names: dict) -> dict[str, np.ndarray]:
+    return {name: np.asarray(getattr(geometry, name)).copy() for name in names}
+
+
+def _geometry_from_arrays(geometry, arrays: dict[str, np.ndarray]):
+    names = _CLOUD_ARRAYS if isinstance(geometry, o3d.geometry.PointCloud) else _MESH_ARRAYS
+    for name, values in arrays.items():
+        if len(values):
+            setattr(geometry, name, names[name](np.ascontiguousarray(values)))
+    return geometry
+
+
 @dataclass
 class Reconstruction:
     """Result of :func:`reconstruct`.
@@ -152,6 +179,20 @@ class Reconstruction:
     num_outliers: int
     voxel_size: float
     parameters: dict = field(default_factory=dict)
+
+    def __getstate__(self) -> dict:
+        # open3d's geometries do not pickle: as arrays, a record crosses to and from worker
+        # processes (a vector env's call("reconstruct")) and is rebuilt the same.
+        state = self.__dict__.copy()
+        state["cloud"] = _geometry_arrays(self.cloud, _CLOUD_ARRAYS)
+        state["mesh"] = _geometry_arrays(self.mesh, _MESH_ARRAYS)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        state = dict(state)
+        state["cloud"] = _geometry_from_arrays(o3d.geometry.PointCloud(), state["cloud"])
+        state["mesh"] = _geometry_from_arrays(o3d.geometry.TriangleMesh(), state["mesh"])
+        self.__dict__.update(state)
 
     @property
     def points(self) -> np.ndarray:

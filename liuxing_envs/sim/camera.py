@@ -29,6 +29,7 @@ from typing import NamedTuple, Protocol
 import mujoco
 import numpy as np
 
+from liuxing_envs.opengl import new_renderer
 from liuxing_envs.perception.pointcloud import (
     camera_rays,
     check_depth,
@@ -508,7 +509,7 @@ class _GLBackend:
         quality.numslices = max(saved[1], _GL_MIN_SLICES)
         quality.numstacks = max(saved[2], _GL_MIN_STACKS)
         try:
-            self._renderer: mujoco.Renderer | None = mujoco.Renderer(
+            self._renderer: mujoco.Renderer | None = new_renderer(
                 model, height=intrinsics.height, width=intrinsics.width
             )
         finally:
