@@ -152,7 +152,13 @@ def resolve_config(
     # would be a silent rule of precedence between two flags of one command line.
     from_hyperparams = (hyperparams or {}).get("env_kwargs")
     from_hyperparams = from_hyperparams if isinstance(from_hyperparams, Mapping) else {}
-    given_twice = sorted(str(key) for key in set(from_hyperparams) & set(env_kwargs or {}))
+    from_flag = list(_leaf_paths(env_kwargs or {}))
+    given_twice = sorted(
+        ".".join(min(a, b, key=len))
+        for a in _leaf_paths(from_hyperparams)
+        for b in from_flag
+        if a[: len(b)] == b[: len(a)]  # the same setting, or one inside the other
+    )
     if given_twice:
         raise ConfigError(
             f"env kwargs {given_twice} are given both in --hyperparams env_kwargs and in "
@@ -259,6 +265,17 @@ def _checkpoint_replay_buffer(run_dir: Path, algo: str) -> Path:
             f"(looked for {run_folder.CHECKPOINTS}/replay_buffer_STEPS_steps.pkl)"
         )
     return path
+
+
+def _leaf_paths(settings: Mapping, prefix: tuple[str, ...] = ()):
+    """The key path of every setting in nested ``settings`` (a non-empty mapping's entries,
+    not the mapping itself)."""
+    for key, value in settings.items():
+        path = (*prefix, str(key))
+        if isinstance(value, Mapping) and value:
+            yield from _leaf_paths(value, path)
+        else:
+            yield path
 
 
 def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:

@@ -788,16 +788,25 @@ def test_auto_backend_picks_gl_here(box_model):
     camera.close()
 
 
-def _make_cameras_in_a_forked_child(model, results) -> None:
+def _make_cameras_in_a_forked_child(model, inherited, data, results) -> None:
+    import traceback
+
     outcome = {}
     try:
-        DepthCamera(model, backend="gl")
-    except RuntimeError as error:
-        outcome["gl"] = str(error)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        outcome["auto"] = DepthCamera(model).backend
-    outcome["warning"] = " ".join(str(w.message) for w in caught)
+        for name, attempt in (
+            ("gl", lambda: DepthCamera(model, backend="gl")),
+            ("inherited", lambda: inherited.render(data)),
+        ):
+            try:
+                attempt()
+            except RuntimeError as error:
+                outcome[name] = str(error)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            outcome["auto"] = DepthCamera(model).backend
+        outcome["warning"] = " ".join(str(w.message) for w in caught)
+    except Exception:  # reported at once, rather than as the parent's timeout
+        outcome["error"] = traceback.format_exc()
     results.put(outcome)
 
 
@@ -807,11 +816,14 @@ def test_a_process_forked_after_an_opengl_context_refuses_gl_instead_of_hanging(
     falls back to ray casting."""
     import multiprocessing
 
-    with DepthCamera(box_model, backend="gl") as camera:
-        camera.render(_data_at(box_model))
+    data = _data_at(box_model)
+    inherited = DepthCamera(box_model, backend="gl")  # made before the fork, used after it
+    inherited.render(data)
     fork = multiprocessing.get_context("fork")
     results = fork.Queue()
-    child = fork.Process(target=_make_cameras_in_a_forked_child, args=(box_model, results))
+    child = fork.Process(
+        target=_make_cameras_in_a_forked_child, args=(box_model, inherited, data, results)
+    )
     child.start()
     try:
         outcome = results.get(timeout=120)
@@ -819,12 +831,14 @@ def test_a_process_forked_after_an_opengl_context_refuses_gl_instead_of_hanging(
         child.join(timeout=10)
         if child.is_alive():
             child.kill()
-    assert "forked from one that had made an OpenGL context" in outcome["gl"]
-    assert "vector_kwargs={'context': 'spawn'}" in outcome["gl"]
+    assert "error" not in outcome, outcome["error"]
+    for attempt in ("gl", "inherited"):
+        assert "forked from one that had made an OpenGL context" in outcome[attempt]
+        assert "vector_kwargs={'context': 'spawn'}" in outcome[attempt]
     assert outcome["auto"] == "raycast" and "forked from one" in outcome["warning"]
     # The parent itself still renders with OpenGL.
-    with DepthCamera(box_model, backend="gl") as camera:
-        assert np.isfinite(camera.render(_data_at(box_model))).any()
+    assert np.isfinite(inherited.render(data)).any()
+    inherited.close()
 
 
 def test_close_is_idempotent_and_final(box_model):

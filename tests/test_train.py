@@ -105,6 +105,15 @@ def test_a_setting_given_twice_is_refused_whatever_the_order(items, message):
         parse_assignments(items, "--hyperparams")
 
 
+def test_two_flags_may_set_different_fields_of_one_env_kwarg():
+    config = training.resolve_config(
+        hyperparams={"env_kwargs": {"depth_noise": {"sigma_base": 0.001}}},
+        env_kwargs={"depth_noise": {"dropout_prob": 0.05}, "view_budget": 5},
+    )
+    assert config["env_kwargs"]["depth_noise"] == {"sigma_base": 0.001, "dropout_prob": 0.05}
+    assert config["env_kwargs"]["view_budget"] == 5
+
+
 def test_the_default_run_is_the_one_the_readme_describes():
     """`python train.py` with no flags (the README's main job): PPO on ViewPlanning-v0 for
     80,000 steps on the procedural training shapes, then 50 held-out comparison episodes."""
@@ -183,6 +192,13 @@ def test_a_python_expression_stays_a_string():
         (
             ["--hyperparams", "env_kwargs.view_budget=6", "--env-kwargs", "view_budget=5"],
             "env kwargs ['view_budget'] are given both in --hyperparams env_kwargs and in",
+        ),
+        (
+            [
+                *("--hyperparams", "env_kwargs.depth_noise.sigma_base=0.001"),
+                *("--env-kwargs", "depth_noise=realsense"),
+            ],
+            "env kwargs ['depth_noise'] are given both",
         ),
         (
             ["--hyperparams", "policy_kwargs.activation_fn=[[1]]"],

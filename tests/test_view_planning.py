@@ -494,6 +494,19 @@ def test_view_to_action_refuses_a_view_no_action_requests_unless_told_to_clip():
     clipped = env.view_to_action(0.0, np.deg2rad(10.0), 5.0, clip=True)
     np.testing.assert_array_equal(clipped[1:], [-1.0, 1.0])
     env.close()
+    # A narrowed azimuth range: its start, logged in degrees and converted back a rounding
+    # below it, is its start (it wrapped to almost a turn above and was refused), and
+    # clipping takes the angularly nearer end.
+    env = ViewPlanningEnv(azimuth_range_deg=(-114.0, -24.0), **FAST)
+    start = np.radians(np.degrees(env.azimuth_range[0]))
+    assert start < env.azimuth_range[0]
+    assert env.view_to_action(start, np.deg2rad(55.0), 0.375)[0] == -1.0
+    with pytest.raises(ValueError, match="azimuth 0 deg"):
+        env.view_to_action(0.0, np.deg2rad(55.0), 0.375)
+    for azimuth_deg, end in ((-120.0, -1.0), (-10.0, 1.0), (150.0, -1.0), (100.0, 1.0)):
+        action = env.view_to_action(np.deg2rad(azimuth_deg), np.deg2rad(55.0), 0.375, clip=True)
+        assert action[0] == end, azimuth_deg
+    env.close()
 
 
 def test_pickles_and_vectorises():

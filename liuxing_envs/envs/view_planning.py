@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.opengl import new_renderer, require_opengl
+from liuxing_envs.opengl import check_not_forked, new_renderer, require_opengl
 from liuxing_envs.perception.coverage import CoverageTracker
 from liuxing_envs.perception.free_space import FreeSpaceGrid
 from liuxing_envs.perception.fusion import VoxelMap
@@ -684,6 +684,7 @@ class ViewPlanningEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
+        check_not_forked()  # a renderer made before a fork hangs in the child
         if self._renderer is None:
             self._renderer = new_renderer(self.model, *RENDER_SIZE)
         self._renderer.update_scene(self.data, camera=OVERVIEW_CAMERA)
@@ -848,14 +849,20 @@ class ViewPlanningEnv(gym.Env):
         """The continuous action that requests view (azimuth and elevation in rad, radius in
         m; ``info["viewpoint"]`` gives degrees). Azimuths wrap by whole turns. A view outside
         the action's ranges, which no action requests, is refused with a ValueError, or with
-        ``clip`` taken at the nearest one that can be requested (the scripted baselines'
-        views under narrowed ranges)."""
+        ``clip`` taken at the nearest one that can be requested, the angularly nearer end of
+        a narrowed azimuth range (the scripted baselines' views under narrowed ranges)."""
         values = np.array([azimuth, elevation, radius], dtype=float)
         if not np.isfinite(values).all():
             raise ValueError(f"view_to_action needs finite numbers, got {values.tolist()}")
-        values[0] = (values[0] - self.azimuth_range[0]) % (2 * np.pi) + self.azimuth_range[0]
+        low, high = self.azimuth_range
+        turn, tolerance = 2 * np.pi, 1e-9
+        values[0] = (values[0] - low) % turn + low
+        if values[0] > high + tolerance and values[0] - turn >= low - tolerance:
+            values[0] -= turn  # a rounding below the range's start, not almost a turn above
+        if clip and values[0] > high:  # only a narrowed range: the nearer of its ends
+            values[0] = high if values[0] - high <= low + turn - values[0] else low
         ranges = np.array([self.azimuth_range, self.elevation_range, self.radius_range])
-        outside = (values < ranges[:, 0] - 1e-9) | (values > ranges[:, 1] + 1e-9)
+        outside = (values < ranges[:, 0] - tolerance) | (values > ranges[:, 1] + tolerance)
         if outside.any() and not clip:
             degrees = np.rad2deg(ranges[:2]).round(2).tolist()
             raise ValueError(
