@@ -519,17 +519,23 @@ def test_pickles_and_vectorises():
     assert a[1] == b[1]
     env.close()
     clone.close()
-    # This test process already holds OpenGL contexts, which a forked worker would inherit
-    # and hang on; spawned workers start clean (see the README on vector envs).
+    # This test process already holds OpenGL contexts, which a forked worker could not use
+    # (it would fall back to ray casting); spawned workers start clean (see the README on
+    # vector envs). The same seeds and actions give the same steps in both modes.
+    actions = np.stack([action, env.view_to_action(-np.pi / 2, np.pi / 3, 0.4)])
+    steps = {}
     for mode, vector_kwargs in (("sync", {}), ("async", {"context": "spawn"})):
         envs = gym.make_vec(
             ENV_ID, num_envs=2, vectorization_mode=mode, vector_kwargs=vector_kwargs, **FAST
         )
         obs, _ = envs.reset(seed=[0, 1])
         assert obs["depth"].shape == (2, 1, 64, 64)
-        obs, rewards, *_ = envs.step(envs.action_space.sample())
-        assert rewards.shape == (2,)
+        steps[mode] = envs.step(actions)
+        assert steps[mode][1].shape == (2,)
         envs.close()
+    for key in steps["sync"][0]:
+        np.testing.assert_array_equal(steps["sync"][0][key], steps["async"][0][key])
+    np.testing.assert_array_equal(steps["sync"][1], steps["async"][1])
 
 
 def test_render_shows_the_scene_with_points_and_frustum():
