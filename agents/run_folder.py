@@ -8,8 +8,8 @@ Layout (file names are constants here, so train.py, evaluate.py and tests agree)
     <run>/checkpoints/        model_<steps>_steps.zip, replay_buffer_<steps>_steps.pkl (SAC),
                               vecnormalize_<steps>_steps.pkl, curriculum_<steps>_steps.json
                               (the start curriculum's level, when it advances)
-    <run>/evaluations.csv     periodic evaluation history (wall_seconds: since the start or the
-                              latest resume of the training that made the row)
+    <run>/evaluations.csv     periodic evaluation history (wall_seconds: of training behind the
+                              row, across resumes; see training.TrainingClock)
     <run>/monitor/            per-episode training returns (SB3 Monitor files)
     <run>/tensorboard/        TensorBoard logs (with --tensorboard)
     <run>/learning_curve.png  evaluation return and task metric against steps

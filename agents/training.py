@@ -12,6 +12,7 @@ import contextlib
 import hashlib
 import inspect
 import json
+import math
 import shutil
 import sys
 import time
@@ -70,6 +71,7 @@ from agents.plotting import plot_learning_curve
 from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS
 from agents.spaces import describe_space, mismatched_spaces
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
+from liuxing_envs.validation import is_number
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}
 VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
@@ -393,9 +395,35 @@ def vector_keys(space: gym.spaces.Space) -> list[str]:
 # --- callbacks -------------------------------------------------------------------------------
 
 
-def save_checkpoint(model, run_dir: Path, curriculum=None) -> int:
+#: The model attribute (saved in its zip with SB3's other attributes) holding the seconds of
+#: training behind it, across resumes.
+TRAINED_SECONDS = "liuxing_trained_seconds"
+
+
+class TrainingClock:
+    """Seconds of training behind a run: this process's since ``learn()`` began, plus what the
+    checkpoint it resumed from had behind it. The time a run spent stopped is not counted,
+    nor the steps after its last checkpoint that a resume trains again."""
+
+    def __init__(self, model, resuming: bool) -> None:
+        before = getattr(model, TRAINED_SECONDS, 0.0) if resuming else 0.0
+        # A checkpoint of older code has none: its count restarts at the resume.
+        valid = is_number(before) and math.isfinite(before) and before >= 0
+        self.before = float(before) if valid else 0.0
+        self.started = time.perf_counter()
+
+    def seconds(self) -> float:
+        return self.before + time.perf_counter() - self.started
+
+
+def save_checkpoint(
+    model, run_dir: Path, curriculum=None, clock: TrainingClock | None = None
+) -> int:
     """Save the model, SAC's replay buffer, the normaliser and ``curriculum``'s state (an
-    :class:`AdvanceStartLevel`, or None) under the model's step count."""
+    :class:`AdvanceStartLevel`, or None) under the model's step count, with ``clock``'s
+    seconds of training in the model."""
+    if clock is not None:
+        setattr(model, TRAINED_SECONDS, round(clock.seconds(), 1))
     steps = int(model.num_timesteps)
     paths = run_folder.checkpoint_paths(run_dir, steps)
     paths["model"].parent.mkdir(parents=True, exist_ok=True)
@@ -485,9 +513,11 @@ class PeriodicCheckpoint(_Periodic):
     with steps its weights had not learned from, and a run resumed from it ended on more
     steps and fewer updates than one never stopped."""
 
-    def __init__(self, run_dir: Path, every: int, curriculum=None) -> None:
+    def __init__(
+        self, run_dir: Path, every: int, curriculum=None, clock: TrainingClock | None = None
+    ) -> None:
         super().__init__(every)
-        self.run_dir, self.curriculum = run_dir, curriculum
+        self.run_dir, self.curriculum, self.clock = run_dir, curriculum, clock
 
     def _on_step(self) -> bool:
         return True
@@ -496,7 +526,7 @@ class PeriodicCheckpoint(_Periodic):
         self._act_if_due()
 
     def act(self) -> None:
-        save_checkpoint(self.model, self.run_dir, self.curriculum)
+        save_checkpoint(self.model, self.run_dir, self.curriculum, self.clock)
 
 
 class _StopRequested(Exception):
@@ -522,7 +552,7 @@ class PeriodicEvaluation(_Periodic):
         first_seed = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
         self.seeds = range(first_seed, first_seed + config["eval_episodes"])
         self.best = self.best_so_far()
-        self.started = time.perf_counter()
+        self.clock: TrainingClock | None = None  # the run's, set by _learn
 
     def best_so_far(self) -> float:
         """The mean return of the best model's evaluation, which the next one must beat to
@@ -533,10 +563,6 @@ class PeriodicEvaluation(_Periodic):
         return max(
             (row["mean_return"] for row in history if row["timesteps"] == steps), default=-np.inf
         )
-
-    def _on_training_start(self) -> None:
-        super()._on_training_start()
-        self.started = time.perf_counter()  # built before the model: wall time counts from here
 
     def act(self) -> None:
         try:
@@ -555,7 +581,7 @@ class PeriodicEvaluation(_Periodic):
             "mean_return": float(np.mean(returns)),
             "std_return": float(np.std(returns)),
             "mean_metric": float(np.mean([episode[self.task.metric] for episode in episodes])),
-            "wall_seconds": round(time.perf_counter() - self.started, 1),
+            "wall_seconds": round(self.clock.seconds(), 1),
         }
         run_folder.append_evaluation(self.run_dir, row)
         self.logger.record("eval/mean_reward", row["mean_return"])
@@ -999,14 +1025,16 @@ def _learn(
     level = level_callback(config.get("start_curriculum"), curriculum)
     if level is not None:
         callbacks.append(level)
+    clock = TrainingClock(model, resuming)
     if config["save_freq"]:
-        callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"], level))
+        callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"], level, clock))
     if evaluation is not None:
+        evaluation.clock = clock
         callbacks.append(evaluation)
     if not config["tensorboard"]:
         # SB3's own silent logger would still make an empty tempdir/SB3-<time> folder per run.
         model.set_logger(Logger(folder=None, output_formats=[]))
-    started = time.perf_counter()
+    clock.started = time.perf_counter()
     # Until the trained run is saved: acted on between learn() and the final checkpoint, a
     # signal left a folder that neither --resume nor a new start would take.
     with interrupts.deferred():
@@ -1026,7 +1054,7 @@ def _learn(
                 # SB3 asks the callbacks before it stores a step's transition: the step the
                 # stop came at is counted but not in the replay buffer.
                 model.num_timesteps -= model.n_envs
-            steps = save_checkpoint(model, run_dir, level)
+            steps = save_checkpoint(model, run_dir, level, clock)
             print(
                 f"\ninterrupted at {steps} steps; checkpoint saved. "
                 f"Continue with: python train.py --resume {run_dir}"
@@ -1034,7 +1062,7 @@ def _learn(
             raise
         except Exception as error:  # a dying worker, a bug, or a setting SB3 cannot train with
             model.num_timesteps = boundary.steps
-            steps = save_checkpoint(model, run_dir, level)
+            steps = save_checkpoint(model, run_dir, level, clock)
             if isinstance(error, WORKER_GONE):
                 # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
                 what = (
@@ -1055,7 +1083,7 @@ def _learn(
             for callback in callbacks:
                 if isinstance(callback, PeriodicEvaluation):
                     callback.env.close()
-        result = _save_trained(model, config, run_dir, level, time.perf_counter() - started)
+        result = _save_trained(model, config, run_dir, level, clock)
     if interrupts.requested():  # after the last step (its update, or the saving) ended
         comparison = f" Run the comparison with: python train.py --resume {run_dir}"
         print(
@@ -1068,16 +1096,18 @@ def _learn(
     return _final_comparison(run_dir, config, result)
 
 
-def _save_trained(model, config: dict, run_dir: Path, level, seconds: float) -> dict:
+def _save_trained(model, config: dict, run_dir: Path, level, clock: TrainingClock) -> dict:
     """The final model, its checkpoint, the learning curve and result.json; returns the
     result."""
+    seconds = round(clock.seconds(), 1)
+    setattr(model, TRAINED_SECONDS, seconds)  # the final model and its checkpoint alike
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
         run_folder.save_atomically(normalizer.save, run_dir / run_folder.FINAL_NORMALIZER)
     run_folder.save_atomically(model.save, run_dir / run_folder.FINAL_MODEL)
     save_checkpoint(model, run_dir, level)  # so a larger --timesteps can continue a finished run
     plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
-    result = {"timesteps": int(model.num_timesteps), "train_seconds": round(seconds, 1)}
+    result = {"timesteps": int(model.num_timesteps), "train_seconds": seconds}
     if level is not None:
         result["start_curriculum"] = {"level": level.level, "advances": level.history}
     # Written before the comparison too: a run stopped during it is trained, and --resume

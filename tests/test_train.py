@@ -585,6 +585,12 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
     assert final.replay_buffer.size() == 256  # the first 128 transitions were kept
     timesteps = [row["timesteps"] for row in run_folder.read_evaluations(run_dir)]
     assert timesteps == sorted(timesteps) and timesteps[-1] == 256 and len(timesteps) >= 3
+    # The training time goes on from the checkpoint's (it restarted at 0 with each resume).
+    before = getattr(first, training.TRAINED_SECONDS)
+    seconds = [row["wall_seconds"] for row in run_folder.read_evaluations(run_dir)]
+    assert 0 < before <= seconds[timesteps.index(192)] and seconds == sorted(seconds)
+    result = json.loads((run_dir / run_folder.RESULT).read_text())
+    assert result["train_seconds"] == getattr(final, training.TRAINED_SECONDS) >= seconds[-1]
 
 
 @pytest.mark.slow

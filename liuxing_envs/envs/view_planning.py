@@ -306,9 +306,13 @@ class ViewPlanningEnv(gym.Env):
     which capped their coverage below the success level for every agent, and 4-7% of a
     bowl's, 4% of an arch's; of a vase's, it counted 10-13% that no view of the env sees and
     left out 14-24% that they see). Changed within v0 (2026-11-27; episodes unchanged):
-    ``view_to_action`` refuses a view outside the action's ranges, where it took the nearest
-    one silently (``clip=True`` keeps that), and OpenGL is refused in a process forked from
-    one that had made a context, where it hung (``"auto"`` falls back to ray casting).
+    ``view_to_action`` refuses a view outside the action's ranges, where it clipped it
+    silently (an azimuth beyond a narrowed range went to the range's upper end);
+    ``clip=True`` clips, to the angularly nearer end of a narrowed azimuth range (the scripted
+    baselines under narrowed ranges may take other views than before; under the default
+    ranges they are unchanged). OpenGL is refused in a process forked from one that had made
+    a context, where it hung (``"auto"`` falls back to ray casting). A ``reconstruct()``
+    record pickles, so a vector env's ``call("reconstruct")`` no longer kills its workers.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
