@@ -403,13 +403,16 @@ TRAINED_SECONDS = "liuxing_trained_seconds"
 class TrainingClock:
     """Seconds of training behind a run: this process's since ``learn()`` began, plus what the
     checkpoint it resumed from had behind it. The time a run spent stopped is not counted,
-    nor the steps after its last checkpoint that a resume trains again."""
+    nor the steps after its last checkpoint that a resume trains again, except a PPO
+    rollout a stop cut short (at most one per stop)."""
 
     def __init__(self, model, resuming: bool) -> None:
         before = getattr(model, TRAINED_SECONDS, 0.0) if resuming else 0.0
-        # A checkpoint of older code has none: its count restarts at the resume.
-        valid = is_number(before) and math.isfinite(before) and before >= 0
-        self.before = float(before) if valid else 0.0
+        try:  # a checkpoint of older code has none: its count restarts at the resume
+            before = float(before) if is_number(before) else 0.0
+        except OverflowError:
+            before = 0.0
+        self.before = before if math.isfinite(before) and before >= 0 else 0.0
         self.started = time.perf_counter()
 
     def seconds(self) -> float:
@@ -593,6 +596,7 @@ class PeriodicEvaluation(_Periodic):
                 run_folder.save_atomically(
                     normalizer.save, self.run_dir / run_folder.BEST_NORMALIZER
                 )
+            setattr(self.model, TRAINED_SECONDS, row["wall_seconds"])  # behind this model
             run_folder.save_atomically(self.model.save, self.run_dir / run_folder.BEST_MODEL)
         return row
 

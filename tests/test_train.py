@@ -591,6 +591,8 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
     assert 0 < before <= seconds[timesteps.index(192)] and seconds == sorted(seconds)
     result = json.loads((run_dir / run_folder.RESULT).read_text())
     assert result["train_seconds"] == getattr(final, training.TRAINED_SECONDS) >= seconds[-1]
+    best = SAC.load(run_dir / run_folder.BEST_MODEL)  # the time behind its evaluation's row
+    assert getattr(best, training.TRAINED_SECONDS) in seconds
 
 
 @pytest.mark.slow
