@@ -305,7 +305,7 @@ class ViewPlanningEnv(gym.Env):
     C-channel or T-pipe, at some or all scales, counted although only such a view saw them,
     which capped their coverage below the success level for every agent, and 4-7% of a
     bowl's, 4% of an arch's; of a vase's, it counted 10-13% that no view of the env sees and
-    left out 14-24% that they see). Changed within v0 (2026-11-27; episodes unchanged):
+    left out 14-24% that they see). Changed within v0 (2026-11-27; default episodes unchanged):
     ``view_to_action`` refuses a view outside the action's ranges, where it clipped it
     silently (an azimuth beyond a narrowed range went to the range's upper end);
     ``clip=True`` clips, to the angularly nearer end of a narrowed azimuth range (the scripted
