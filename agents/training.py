@@ -150,22 +150,7 @@ def resolve_config(
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
-    # The same env kwarg in --hyperparams env_kwargs.X and in --env-kwargs: which one wins
-    # would be a silent rule of precedence between two flags of one command line.
-    from_hyperparams = (hyperparams or {}).get("env_kwargs")
-    from_hyperparams = from_hyperparams if isinstance(from_hyperparams, Mapping) else {}
-    from_flag = list(_leaf_paths(env_kwargs or {}))
-    given_twice = sorted(
-        ".".join(min(a, b, key=len))
-        for a in _leaf_paths(from_hyperparams)
-        for b in from_flag
-        if a[: len(b)] == b[: len(a)]  # the same setting, or one inside the other
-    )
-    if given_twice:
-        raise ConfigError(
-            f"env kwargs {given_twice} are given both in --hyperparams env_kwargs and in "
-            "--env-kwargs; give each setting once"
-        )
+    _refuse_env_kwargs_given_twice(hyperparams or {}, env_kwargs or {})
     merged = deep_update(default_hyperparams(algo, env_id, config_file), hyperparams or {})
     harness, algo_kwargs = split_hyperparams(merged, ALGO_CLASSES[algo])
     for key in ("env_kwargs", "eval_env_kwargs"):
@@ -267,6 +252,26 @@ def _checkpoint_replay_buffer(run_dir: Path, algo: str) -> Path:
             f"(looked for {run_folder.CHECKPOINTS}/replay_buffer_STEPS_steps.pkl)"
         )
     return path
+
+
+def _refuse_env_kwargs_given_twice(hyperparams: Mapping, env_kwargs: Mapping) -> None:
+    """ConfigError for a setting in both --hyperparams env_kwargs.X and --env-kwargs (or a
+    mapping in one and a key inside it in the other): which one won would be a silent rule
+    of precedence between two flags of one command line."""
+    from_hyperparams = hyperparams.get("env_kwargs")
+    from_hyperparams = from_hyperparams if isinstance(from_hyperparams, Mapping) else {}
+    from_flag = list(_leaf_paths(env_kwargs))
+    given_twice = sorted(
+        ".".join(min(a, b, key=len))
+        for a in _leaf_paths(from_hyperparams)
+        for b in from_flag
+        if a[: len(b)] == b[: len(a)]  # the same setting, or one inside the other
+    )
+    if given_twice:
+        raise ConfigError(
+            f"env kwargs {given_twice} are given both in --hyperparams env_kwargs and in "
+            "--env-kwargs; give each setting once"
+        )
 
 
 def _leaf_paths(settings: Mapping, prefix: tuple[str, ...] = ()):
@@ -1038,7 +1043,6 @@ def _learn(
     if not config["tensorboard"]:
         # SB3's own silent logger would still make an empty tempdir/SB3-<time> folder per run.
         model.set_logger(Logger(folder=None, output_formats=[]))
-    clock.started = time.perf_counter()
     # Until the trained run is saved: acted on between learn() and the final checkpoint, a
     # signal left a folder that neither --resume nor a new start would take.
     with interrupts.deferred():

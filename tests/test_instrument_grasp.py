@@ -148,6 +148,7 @@ class MeasuredEpisode:
         self.steps = []  # (peaks (left, right, impact), info, terminated) of each step
         self._samples = []
 
+        # A spy, not a stand-in: MuJoCo's own step runs, then the sensors are read.
         def sampled_step(model, data, *args, **kw):
             PHYSICS_STEP(model, data, *args, **kw)
             world = self.env.world

@@ -142,8 +142,7 @@ def _geometry_arrays(geometry, names: dict) -> dict[str, np.ndarray]:
     return {name: np.asarray(getattr(geometry, name)).copy() for name in names}
 
 
-def _geometry_from_arrays(geometry, arrays: dict[str, np.ndarray]):
-    names = _CLOUD_ARRAYS if isinstance(geometry, o3d.geometry.PointCloud) else _MESH_ARRAYS
+def _geometry_from_arrays(geometry, arrays: dict[str, np.ndarray], names: dict):
     for name, values in arrays.items():
         if len(values):
             setattr(geometry, name, names[name](np.ascontiguousarray(values)))
@@ -190,8 +189,9 @@ class Reconstruction:
 
     def __setstate__(self, state: dict) -> None:
         state = dict(state)
-        state["cloud"] = _geometry_from_arrays(o3d.geometry.PointCloud(), state["cloud"])
-        state["mesh"] = _geometry_from_arrays(o3d.geometry.TriangleMesh(), state["mesh"])
+        cloud, mesh = o3d.geometry.PointCloud(), o3d.geometry.TriangleMesh()
+        state["cloud"] = _geometry_from_arrays(cloud, state["cloud"], _CLOUD_ARRAYS)
+        state["mesh"] = _geometry_from_arrays(mesh, state["mesh"], _MESH_ARRAYS)
         self.__dict__.update(state)
 
     @property
