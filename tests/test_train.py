@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 import yaml
 from stable_baselines3 import PPO
+from stable_baselines3.common.logger import Logger
 
 import train
 from agents import run_folder, training
@@ -1238,6 +1239,7 @@ def test_every_observation_preset_trains_with_multi_input_policy(env_id, env_kwa
         seed=0,
         policy_kwargs=policy_kwargs({"features_extractor": extractor}),
     )
+    model.set_logger(Logger(folder=None, output_formats=[]))  # SB3's own leaves tmp/SB3-<time>
     model.learn(8)
     observation, _ = env.reset(seed=1)
     action, _ = model.predict(observation, deterministic=True)

@@ -1,5 +1,6 @@
 """ViewPlanning-v0: API conformance, reward bookkeeping, coverage, determinism, bad input."""
 
+import copy
 import gc
 import pickle
 import warnings
@@ -536,6 +537,32 @@ def test_pickles_and_vectorises():
     for key in steps["sync"][0]:
         np.testing.assert_array_equal(steps["sync"][0][key], steps["async"][0][key])
     np.testing.assert_array_equal(steps["sync"][1], steps["async"][1])
+
+
+def test_a_deep_copy_scans_on_alone_and_shares_the_process_caches():
+    env = ViewPlanningEnv(**FAST)
+    env.reset(seed=4)
+    env.step(env.view_to_action(np.pi / 2, np.pi / 4, 0.38))
+    clone = copy.deepcopy(env)
+    key = (env.placed.name, env.placed.scale)
+    scenes, scenes_copy = env._variant_scenes[key], clone._variant_scenes[key]
+    assert scenes_copy._with_arm.model is scenes._with_arm.model
+    assert scenes_copy._with_arm.data is not scenes._with_arm.data
+    # The arm's collision scene: the object stands where it stood.
+    np.testing.assert_array_equal(
+        scenes_copy._with_arm.data.geom_xpos, scenes._with_arm.data.geom_xpos
+    )
+    actions = [env.view_to_action(-np.pi / 2, np.pi / 3, 0.4), env.view_to_action(0.0, 1.2, 0.36)]
+    copied = [clone.step(action) for action in actions]  # first: the original must not see it
+    original = [env.step(action) for action in actions]
+    for (obs, reward, *_, info), (obs_copy, reward_copy, *_, info_copy) in zip(original, copied):
+        for key in obs:
+            np.testing.assert_array_equal(obs[key], obs_copy[key])
+        assert reward == reward_copy and info["coverage"] == info_copy["coverage"]
+        assert info["coverage_gain"] > 0
+    assert clone.coverage is not env.coverage and clone.coverage.samples is env.coverage.samples
+    env.close()
+    clone.close()
 
 
 def test_render_shows_the_scene_with_points_and_frustum():

@@ -142,6 +142,14 @@ class CoverageTracker:
         # kdtree: indices of the observable samples still uncovered, compacted as they go.
         self._remaining = np.flatnonzero(self._inner_observable)
 
+    def __deepcopy__(self, memo: dict) -> CoverageTracker:
+        """A copy of the scan so far that shares the read-only set-up, as :meth:`fresh` does."""
+        tracker = copy.copy(self)
+        tracker._done = self._done.copy()
+        tracker._remaining = self._remaining.copy()
+        memo[id(self)] = tracker
+        return tracker
+
     def fresh(self) -> CoverageTracker:
         """A tracker of the same samples with nothing covered, sharing this one's read-only
         set-up (samples, lookup grid): no set-up cost and no second copy of the grid, for
