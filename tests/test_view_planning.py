@@ -555,7 +555,8 @@ def test_a_deep_copy_scans_on_alone_and_shares_the_process_caches():
     actions = [env.view_to_action(-np.pi / 2, np.pi / 3, 0.4), env.view_to_action(0.0, 1.2, 0.36)]
     copied = [clone.step(action) for action in actions]  # first: the original must not see it
     original = [env.step(action) for action in actions]
-    for (obs, reward, *_, info), (obs_copy, reward_copy, *_, info_copy) in zip(original, copied):
+    for mine, theirs in zip(original, copied, strict=True):
+        (obs, reward, *_, info), (obs_copy, reward_copy, *_, info_copy) = mine, theirs
         for key in obs:
             np.testing.assert_array_equal(obs[key], obs_copy[key])
         assert reward == reward_copy and info["coverage"] == info_copy["coverage"]
