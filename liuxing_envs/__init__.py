@@ -17,8 +17,8 @@ INSTRUMENT_GRASP_STEPS = 200
 ENV_IDS = ("ViewPlanning-v0", "InstrumentGrasp-v0")
 
 if "ViewPlanning-v0" not in gym.registry:
-    # The env truncates itself after view_budget views; the TimeLimit matches the default
-    # budget, so pass max_episode_steps too when you change view_budget.
+    # The env terminates its episode after view_budget views; the TimeLimit matches the
+    # default budget, so pass max_episode_steps too when you change view_budget.
     gym.register(
         id="ViewPlanning-v0",
         entry_point="liuxing_envs.envs.view_planning:ViewPlanningEnv",

@@ -14,8 +14,9 @@ import numpy as np
 def require_choice(name: str, value, allowed) -> None:
     # An array compares element by element: one element would pass as that element (and be
     # kept as an array), more would raise numpy's ambiguous-truth error, which names nothing.
-    # A switch takes a bool, not 1 or 1.0 (which equal True, and would be recorded as given).
-    switch = is_number(value)
+    # A switch takes a bool, not 1, 1.0 or 1+0j (which equal True, and would be recorded as
+    # given).
+    switch = is_number(value) or isinstance(value, complex | np.complexfloating)
     if (
         isinstance(value, np.ndarray)
         or value not in allowed
@@ -92,12 +93,14 @@ def checked_reset_options(options, checks: Mapping[str, Callable]) -> dict:
 
 def option_in(allowed) -> Callable:
     """A check that returns the allowed choice equal to the value: numpy compares a float32
-    with a Python float in float32, so ``np.float32(0.9)`` matches 0.9 and becomes 0.9."""
+    with a Python float in float32, so ``np.float32(0.9)`` matches 0.9 and becomes 0.9. A bool
+    matches only a bool (True equals 1 and 1.0)."""
 
     def check(key, value):
         if not isinstance(value, np.ndarray):
+            flag = isinstance(value, bool | np.bool_)
             for choice in allowed:
-                if value == choice:
+                if flag == isinstance(choice, bool) and value == choice:
                     return choice
         raise ValueError(f"reset option {key}={value!r} is not one of {tuple(allowed)}")
 

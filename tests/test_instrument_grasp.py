@@ -404,6 +404,21 @@ def test_an_image_env_can_be_reset_after_close():
     env.close()
 
 
+def test_wrist_camera_pose_is_the_camera_s_for_given_joint_angles_and_names_bad_ones():
+    env = InstrumentGraspEnv()
+    env.reset(seed=0)
+    now = env.wrist_camera_pose()
+    given = env.wrist_camera_pose(env.world.arm.qpos.tolist())
+    for mine, theirs in zip(now, given, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+    moved = env.wrist_camera_pose(env.world.arm.qpos + 0.1)
+    assert np.linalg.norm(moved[0] - now[0]) > 0.01
+    for bad in (0.5, [0.0] * 5, [np.nan] * 6, "123456"):
+        with pytest.raises(ValueError, match="wrist_camera_pose needs 6 finite joint angles"):
+            env.wrist_camera_pose(bad)
+    env.close()
+
+
 def test_handle_detection_matches_the_grasp_point():
     env = InstrumentGraspEnv(obs_mode="rgbd", resolution=128)
     for seed in range(4):
@@ -604,6 +619,7 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
             {"terminate_on_success": "yes"},
             r"terminate_on_success='yes' is not allowed; choose one of \[False, True\]",
         ),
+        ({"terminate_on_success": 1 + 0j}, r"terminate_on_success=\(1\+0j\) is not allowed"),
         ({"reach_sharpness": 0.0}, r"reach_sharpness must be a number in \[0.1, 100.0\]"),
         (
             {"gripper_control": "velocity"},

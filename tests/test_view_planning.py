@@ -445,6 +445,7 @@ def test_the_procedural_set_is_its_64_shapes():
         ({"discrete_elevations_deg": (30, 90)}, "below 90 \\(the top view is always a candidate"),
         # A switch takes a bool: 1 would be recorded in a run's config as given.
         ({"privileged": 1}, r"privileged=1 is not allowed; choose one of \[False, True\]"),
+        ({"terminate_on_success": 1 + 0j}, r"terminate_on_success=\(1\+0j\) is not allowed"),
         ({"filter_arm_points": np.float64(0.0)}, "filter_arm_points=.*0.0.* is not allowed"),
     ],
 )
@@ -703,6 +704,10 @@ def test_reset_options_are_checked_whatever_the_draw_and_a_refusal_changes_nothi
     # numpy compares float32 with float in float32: the option must become the scale itself.
     _, info = env.reset(seed=0, options={"object": "box", "scale": np.float32(0.9)})
     assert info["scale"] == 0.9
+    one = ViewPlanningEnv(**FAST)  # True equals the scale 1.0, but is no scale
+    with pytest.raises(ValueError, match=r"reset option scale=True is not one of \(1.0,\)"):
+        one.reset(seed=0, options={"scale": True})
+    one.close()
     # x = 0.23 m leaves the mug at either scale and the box at 0.9 inside the crop, not the
     # box at 1.1: refused at every seed unless the options rule that one out.
     for seed in range(4):
@@ -719,6 +724,13 @@ def test_reset_options_are_checked_whatever_the_draw_and_a_refusal_changes_nothi
     drawn, _ = env.reset()
     np.testing.assert_array_equal(drawn["depth"], expected["depth"])  # same pose
     env.close()
+
+
+def test_preview_view_names_a_bad_view(env):
+    env.reset(seed=0)
+    for view in ((np.nan, 0.5, 0.38), (0.0, np.inf, 0.38), (0.0, 0.5, -0.38), (0.0, 0.5, "0.38")):
+        with pytest.raises(ValueError, match="preview_view needs a finite azimuth and elevation"):
+            env.unwrapped.preview_view(*view)
 
 
 def test_reconstruct_names_a_bad_tau_fraction(env):
@@ -755,7 +767,7 @@ def test_depth_noise_can_be_given_as_a_config_gives_it():
         env.close()
     with pytest.raises(ValueError, match="depth_noise has no setting 'sigma'; its settings are"):
         ViewPlanningEnv(depth_noise={"sigma": 0.01}, **FAST)
-    with pytest.raises(TypeError, match="depth_noise must be a DepthNoise, None, 'realsense'"):
+    with pytest.raises(ValueError, match="depth_noise must be a DepthNoise, None, 'realsense'"):
         ViewPlanningEnv(depth_noise="kinect", **FAST)
 
 

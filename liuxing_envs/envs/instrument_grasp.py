@@ -220,7 +220,9 @@ class InstrumentGraspEnv(gym.Env):
     ==============  ==========  =============================================================
     ``proprio``     (19,)       arm joint angles (6, rad), joint velocities (6, rad/s),
                                 tool-centre position (3, m), cos and sin of the tool yaw (2),
-                                pad opening and commanded opening (2, m)
+                                pad opening and commanded opening (2, m; with
+                                ``gripper_control="force"`` the command is the servos'
+                                end of travel: 0 while closing, 0.08 while opening)
     ``forces``      (2,)        left and right fingertip normal force (N): the pads' touch
                                 sensors, i.e. every contact on a pad (instrument, tray, ...)
     ``instrument``  (14,)       ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
@@ -242,7 +244,8 @@ class InstrumentGraspEnv(gym.Env):
       point (m), ``reach_sharpness`` 10/m by default;
     - ``reward_grasp`` = 1 while both pads press on the instrument with >= 0.5 N each
       (contact normal forces with the instrument alone, not what the touch sensors add up);
-    - ``reward_lift`` = 2 min(1, lift / ``target_height``) while grasped;
+    - ``reward_lift`` = 2 min(1, max(0, lift) / ``target_height``) while grasped (lift: the
+      grasp point's height above where it lay at reset, m; pressed down, it pays 0);
     - ``reward_hold`` = 1 while grasped at the target height;
     - ``reward_force`` = -``force_penalty`` sum_pads max(0, peak pad force - ``force_limit``);
     - ``reward_impact`` = -``impact_penalty`` max(0, peak impact - ``impact_limit``), the
@@ -725,7 +728,14 @@ class InstrumentGraspEnv(gym.Env):
         -z) in the world for the given arm joint angles (default: the current ones), from
         the arm's kinematics: the calibration a real robot has, not privileged state."""
         world = self.world
-        qpos = world.arm.qpos if arm_qpos is None else np.asarray(arm_qpos, dtype=float)
+        if arm_qpos is None:
+            return world.wrist_camera_pose(world.arm.qpos)
+        qpos = finite_vector(arm_qpos, world.arm.qpos.size)
+        if qpos is None:
+            raise ValueError(
+                f"wrist_camera_pose needs {world.arm.qpos.size} finite joint angles (rad), "
+                f"got {arm_qpos!r}"
+            )
         return world.wrist_camera_pose(qpos)
 
     @property

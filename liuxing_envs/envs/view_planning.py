@@ -54,6 +54,7 @@ from liuxing_envs.validation import (
     as_action,
     as_index,
     checked_reset_options,
+    is_number,
     option_angle,
     option_in,
     option_xy,
@@ -794,6 +795,12 @@ class ViewPlanningEnv(gym.Env):
         there. For oracles and analysis, never for a policy's observations."""
         if not self._episode_ready:
             raise RuntimeError("call reset() before preview_view()")
+        view = (azimuth, elevation, radius)
+        if not all(is_number(value) and math.isfinite(value) for value in view) or radius <= 0:
+            raise ValueError(
+                "preview_view needs a finite azimuth and elevation (rad) and a radius > 0 (m), "
+                f"got {view!r}"
+            )
         plan = self._plan_view(sphere_point(self.center, azimuth, elevation, radius))
         if plan is None:
             return {

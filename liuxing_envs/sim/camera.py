@@ -348,7 +348,7 @@ class DepthNoise:
         config or ``--env-kwargs 'depth_noise={sigma_base: 0.001}'`` gives it."""
         if value is None or isinstance(value, cls):
             return value
-        if value == "realsense":
+        if isinstance(value, str) and value == "realsense":
             return cls.realsense_like()
         names = [field.name for field in dataclasses.fields(cls)]
         if isinstance(value, Mapping):
@@ -358,7 +358,7 @@ class DepthNoise:
                     f"{name} has no setting {unknown[0]!r}; its settings are {', '.join(names)}"
                 )
             return cls(**value)
-        raise TypeError(
+        raise ValueError(
             f"{name} must be a DepthNoise, None, 'realsense' or a mapping of "
             f"{', '.join(names)}; got {value!r}"
         )
