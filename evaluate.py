@@ -116,8 +116,12 @@ def main(argv: list[str] | None = None) -> int:
     for flag in ("seed", "reconstruct_episodes", "save_reconstructions"):
         if getattr(args, flag) < 0:
             parser.error(f"--{flag.replace('_', '-')} must be 0 or more")
-    if args.seed > MAX_SEED:  # as train.py's: torch's generator refused seeds from 2**64
-        parser.error(f"--seed must be at most {MAX_SEED}, got {args.seed}")
+    last_seed = args.seed + args.episodes - 1  # one seed per episode
+    if last_seed > MAX_SEED:  # as train.py's: torch's generator refused seeds from 2**64
+        parser.error(
+            f"--seed must be at most {MAX_SEED - args.episodes + 1} for {args.episodes} "
+            f"episodes (their seeds run to {last_seed}, above {MAX_SEED}), got {args.seed}"
+        )
     if problem := mujoco_import_problem():
         parser.error(problem)
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.

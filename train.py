@@ -104,8 +104,19 @@ def main(argv: list[str] | None = None) -> int:
     interrupts.install()
     if problem := mujoco_import_problem():
         parser.error(problem)
-    # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
-    from agents import training
+    if args.run_dir and args.log_folder:
+        parser.error(
+            "give --run-dir (the run's own folder) or --log-folder (a folder of runs), not both"
+        )
+    # Heavy imports (torch, SB3, MuJoCo, open3d) after parsing, so --help and flag errors are
+    # instant; signals wait for them: a Ctrl-C landing in open3d's import became its
+    # ImportError ("initialization failed"), a traceback and exit 1.
+    with interrupts.deferred():
+        import liuxing_envs.sim.objects  # noqa: F401  (open3d)
+        from agents import training
+    if interrupts.requested():
+        print("interrupted before training began: nothing was saved", file=sys.stderr)
+        return 130
 
     try:
         if args.resume:

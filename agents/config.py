@@ -210,9 +210,12 @@ def linear_schedule_start(key: str, value: str, algo_name: str = "the algorithm'
 def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
     """A value of the kind the algorithm's own default has, so ``gamma=abc`` fails here with
     its name instead of as a tensor error minutes into training. Only scalars are checked:
-    a list is one of SB3's tuple forms (``train_freq: [1, episode]``). A None default leaves
-    the kind open, except for the numbers that default to off (``target_kl``). The keys in
-    :data:`SCHEDULED` also take ``lin_<start>``."""
+    a list is one of SB3's tuple forms, of which ``train_freq: [n, step|episode]`` is checked
+    too. A None default leaves the kind open, except for the numbers that default to off
+    (``target_kl``). The keys in :data:`SCHEDULED` also take ``lin_<start>``."""
+    if key == "train_freq" and isinstance(value, (list, tuple)):
+        check_train_freq_pair(algo_name, value)
+        return
     if isinstance(value, (list, tuple, dict)) or (value is None and default is None):
         return
     if key in SCHEDULED and isinstance(value, str):
@@ -240,6 +243,26 @@ def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
             raise ConfigError(
                 f"{algo_name} hyper-parameter {key} must be in [{low}, {high}], got {value!r}"
             )
+
+
+#: The units of SB3's ``train_freq: [n, unit]``.
+TRAIN_FREQ_UNITS = ("step", "episode")
+
+
+def check_train_freq_pair(algo_name: str, value) -> None:
+    """``train_freq`` in SB3's pair form: an integer >= 1 and a unit. SB3 drops a third item
+    silently and fails only when training starts on a count of 0."""
+    form = (
+        f"an integer >= 1 or a pair [n, unit], n an integer >= 1 and unit one of {TRAIN_FREQ_UNITS}"
+    )
+    message = f"{algo_name} hyper-parameter train_freq must be {form}, got {value!r}"
+    if len(value) != 2:
+        raise ConfigError(message)
+    count, unit = value
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+        raise ConfigError(message)
+    if unit not in TRAIN_FREQ_UNITS:
+        raise ConfigError(f"{message}{closest(str(unit), TRAIN_FREQ_UNITS)}")
 
 
 #: The critic's key in a ``net_arch`` mapping, per algorithm (the actor's is ``pi``).

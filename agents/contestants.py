@@ -8,8 +8,6 @@ trained with observation normalisation whose statistics are missing.
 
 from __future__ import annotations
 
-import json
-import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -252,26 +250,18 @@ def _normalizer_beside(model_path: Path) -> Path:
 
 #: A hyper-parameter only this algorithm saves in an SB3 zip's ``data``. The policy class
 #: does not tell: PPO's lives in ``stable_baselines3.common.policies``, as A2C's does.
-_ALGO_SIGNATURES = {"ppo": "clip_range", "sac": "target_entropy"}
-
-
 def _algo_in_zip(model_path: Path) -> str:
-    """The algorithm that saved an SB3 model zip, read from its ``data`` record."""
+    """The algorithm that saved an SB3 model zip."""
     try:
-        with zipfile.ZipFile(model_path) as archive:
-            data = json.loads(archive.read("data"))
-        module = data["policy_class"]["__module__"]
-    except (zipfile.BadZipFile, KeyError, ValueError, TypeError, OSError) as error:
+        algo = run_folder.saved_algorithm(model_path)
+    except run_folder.RunFolderError as error:
+        raise ContestantError(str(error)) from error
+    if algo is None:
         raise ContestantError(
-            f"{str(model_path)!r} is not a stable-baselines3 model zip ({error})"
-        ) from error
-    for algo, key in _ALGO_SIGNATURES.items():
-        if key in data:
-            return algo
-    raise ContestantError(
-        f"{str(model_path)!r} holds a {module} policy of an algorithm evaluate.py does not "
-        f"know; it knows {', '.join(ALGO_CLASSES)}"
-    )
+            f"{str(model_path)!r} holds a policy of an algorithm evaluate.py does not know; "
+            f"it knows {', '.join(ALGO_CLASSES)}"
+        )
+    return algo
 
 
 def _load(algo: str, model_path: Path, normalizer_path: Path | None) -> SB3Policy:

@@ -14,6 +14,10 @@ it (parsing, set-up, which a stopped start undoes, the final evaluation) and for
 signal, the handler raises ``KeyboardInterrupt`` at once, so a run that no longer steps
 can still be stopped.
 
+While the checkpoint of a stopped run is written (:func:`saving`), a second signal only
+says so, and a third abandons the checkpoint: a second Ctrl-C is a common reflex while
+"saving" shows, and it used to lose every step since the last periodic checkpoint.
+
 Worker processes of a ``SubprocVecEnv`` ignore both signals (:func:`ignore_in_worker`):
 Ctrl-C on a terminal, like a scheduler signalling a job's process group, reaches every
 process, and a worker killed by it would turn a clean stop into a "worker died" error. The
@@ -25,14 +29,19 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import signal
+import sys
 from collections.abc import Iterator
 
-_state = {"deferring": False, "requested": False}
+_state = {"deferring": False, "requested": False, "saving": False, "warned": False}
 
 
 def _handler(signum, frame) -> None:
     if _state["deferring"] and not _state["requested"]:
         _state["requested"] = True
+        return
+    if _state["saving"] and not _state["warned"]:
+        _state["warned"] = True
+        print("\nsaving the checkpoint first; signal again to abandon it", file=sys.stderr)
         return
     raise KeyboardInterrupt
 
@@ -53,6 +62,17 @@ def deferred() -> Iterator[None]:
         yield
     finally:
         _state["deferring"] = False
+
+
+@contextlib.contextmanager
+def saving() -> Iterator[None]:
+    """Within this block (writing a stopped run's checkpoint) one more signal is only
+    reported; the one after raises KeyboardInterrupt."""
+    _state.update(saving=True, warned=False)
+    try:
+        yield
+    finally:
+        _state["saving"] = False
 
 
 def requested() -> bool:

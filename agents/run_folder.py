@@ -249,6 +249,24 @@ def write_text_atomically(path: Path, text: str) -> None:
     save_atomically(lambda temporary: temporary.write_text(text), path)
 
 
+#: A key of an SB3 model zip's ``data`` record only that algorithm saves.
+ALGO_SIGNATURES = {"ppo": "clip_range", "sac": "target_entropy"}
+
+
+def saved_algorithm(path: Path) -> str | None:
+    """The algorithm (``ppo`` or ``sac``) that saved an SB3 model zip, read from its ``data``
+    record; None for another algorithm. UnreadableFileError if it is no SB3 model zip."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+        data["policy_class"]["__module__"]
+    except (zipfile.BadZipFile, KeyError, ValueError, TypeError, OSError) as error:
+        raise UnreadableFileError(
+            f"{str(path)!r} is not a stable-baselines3 model zip ({error})", path
+        ) from error
+    return next((algo for algo, key in ALGO_SIGNATURES.items() if key in data), None)
+
+
 def load_model(algo_class, path: Path, **kwargs):
     """``algo_class.load(path, **kwargs)``, failing with a RunFolderError that names the file
     and the problem when it is missing, truncated, corrupt or not a model of that kind."""

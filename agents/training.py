@@ -550,7 +550,13 @@ class PeriodicEvaluation(_Periodic):
     """Evaluates the current policy on its own env (the training env's kwargs with the
     config's ``eval_env_kwargs`` over them) every ``every`` steps, appends a row to
     ``evaluations.csv`` and keeps the best model (by mean return) as ``best_model.zip``.
-    The caller closes :attr:`env`."""
+    The caller closes :attr:`env`.
+
+    PPO is evaluated where a rollout starts and where training ends, after its update, as
+    checkpoints are taken: at the step that passes a multiple, a row and a best model were
+    labelled with steps their weights had not learned from (one rollout's), and the last
+    update was never scored. A resumed run first makes up an evaluation a stop cut short,
+    which is not recorded."""
 
     def __init__(self, config: dict, run_dir: Path, every: int) -> None:
         super().__init__(every)
@@ -571,6 +577,27 @@ class PeriodicEvaluation(_Periodic):
         return max(
             (row["mean_return"] for row in history if row["timesteps"] == steps), default=-np.inf
         )
+
+    def _on_training_start(self) -> None:
+        super()._on_training_start()
+        self._after_update = isinstance(self.model, OnPolicyAlgorithm)
+        done = {row["timesteps"] // self.every for row in run_folder.read_evaluations(self.run_dir)}
+        missed = self.model.num_timesteps // self.every
+        if missed and missed not in done:  # a resumed run whose evaluation a stop cut short
+            self.next_at = self.model.num_timesteps
+
+    def _on_step(self) -> bool:
+        if not self._after_update:
+            self._act_if_due()
+        return True
+
+    def _on_rollout_start(self) -> None:
+        if self._after_update:
+            self._act_if_due()
+
+    def _on_training_end(self) -> None:
+        if self._after_update and not interrupts.requested():
+            self._act_if_due()
 
     def act(self) -> None:
         try:
@@ -906,6 +933,8 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
         trained = (run_dir / run_folder.FINAL_MODEL).is_file()
         if config["final_episodes"] and trained and "comparison" not in result:
             print(f"{str(run_dir)!r} finished training; running its final comparison")
+            # Recorded as any resume is: its command, and a --final-episodes it changed.
+            run_folder.write_config(run_dir, config)
             return _final_comparison(run_dir, config, result)
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {config['n_timesteps']} steps; "
@@ -918,6 +947,13 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
     try:
         venv = build_vec_env(config, run_dir)
         _check_checkpoint_fits(paths["model"], venv, run_dir / run_folder.CONFIG)
+        saved_by = run_folder.saved_algorithm(paths["model"])
+        if saved_by != config["algo"]:
+            raise run_folder.RunFolderError(
+                f"{str(run_dir / run_folder.CONFIG)!r}: algo {config['algo']} did not save "
+                f"{str(paths['model'])!r}, {saved_by or 'another algorithm'} did (was "
+                "config.yml edited?)"
+            )
         if config["normalize"]:
             normalizer = run_folder.load_normalizer(paths["normalizer"])
             normalizer.set_venv(venv)
@@ -1062,7 +1098,8 @@ def _learn(
                 # SB3 asks the callbacks before it stores a step's transition: the step the
                 # stop came at is counted but not in the replay buffer.
                 model.num_timesteps -= model.n_envs
-            steps = save_checkpoint(model, run_dir, level, clock)
+            with interrupts.saving():
+                steps = save_checkpoint(model, run_dir, level, clock)
             print(
                 f"\ninterrupted at {steps} steps; checkpoint saved. "
                 f"Continue with: python train.py --resume {run_dir}"

@@ -404,6 +404,56 @@ def test_an_image_env_can_be_reset_after_close():
     env.close()
 
 
+def arm_damping_ratios(env) -> np.ndarray:
+    """Each arm servo's damping ratio in the env's current pose: kv / (2 sqrt(kp m))."""
+    world = env.world
+    model, data = world.model, world.data
+    ratios = []
+    for actuator in world._arm_actuators:
+        dof = model.jnt_dofadr[model.actuator_trnid[actuator, 0]]
+        unit, column = np.zeros(model.nv), np.zeros(model.nv)
+        unit[dof] = 1.0
+        mujoco.mj_mulM(model, data, column, unit)
+        kp, kv = model.actuator_gainprm[actuator, 0], -model.actuator_biasprm[actuator, 2]
+        ratios.append(kv / (2.0 * np.sqrt(kp * column[dof])))
+    return np.array(ratios)
+
+
+def tool_moves(env, direction, steps: int = 6, after: int = 4):
+    """Tool-centre displacement in the last of ``steps`` full ee_delta steps along
+    ``direction``, and how far it coasts in ``after`` steps of no action."""
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(np.zeros(5, np.float32))
+    for _ in range(steps):
+        start = env.world.tcp_position()
+        env.step(np.array([*direction, 0.0, 0.0], np.float32))
+    last = env.world.tcp_position() - start
+    start = env.world.tcp_position()
+    for _ in range(after):
+        env.step(np.zeros(5, np.float32))
+    return last, env.world.tcp_position() - start
+
+
+def test_servo_damping_ratio_damps_each_arm_joint_alike_and_keeps_moves_nearer_their_axis():
+    settings = {"instruments": ["scalpel"], "arm_stiffness": 0.1, "max_translation": 0.01}
+    model_damped = InstrumentGraspEnv(**settings)
+    evenly_damped = InstrumentGraspEnv(servo_damping_ratio=0.7, **settings)
+    model_damped.reset(seed=0)
+    evenly_damped.reset(seed=0)
+    # In the ready pose the MJCF's dampratio (MuJoCo's, at qpos0) is far from even.
+    ratios = arm_damping_ratios(model_damped)
+    assert ratios[0] > 1.5 and ratios[2] < 0.6
+    np.testing.assert_allclose(arm_damping_ratios(evenly_damped), 0.7, rtol=0.01)
+    both = (model_damped, evenly_damped)
+    (climb, _), (level, _) = (tool_moves(env, [1, 0, 0]) for env in both)
+    assert climb[2] / climb[0] > 0.8 and level[2] / level[0] < 0.6  # +x alone asked for
+    (_, coast), (_, settled) = (tool_moves(env, [0, 0, -1]) for env in both)
+    assert coast[2] < -0.008 and -0.005 < settled[2] < 0.0  # going on down after the last action
+    model_damped.close()
+    evenly_damped.close()
+
+
 def test_wrist_camera_pose_is_the_camera_s_for_given_joint_angles_and_names_bad_ones():
     env = InstrumentGraspEnv()
     env.reset(seed=0)
@@ -620,6 +670,8 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
             r"terminate_on_success='yes' is not allowed; choose one of \[False, True\]",
         ),
         ({"terminate_on_success": 1 + 0j}, r"terminate_on_success=\(1\+0j\) is not allowed"),
+        ({"servo_damping_ratio": 0.0}, r"servo_damping_ratio must be a number in \[0.1, 10.0\]"),
+        ({"servo_damping_ratio": "critical"}, r"servo_damping_ratio must be a number in"),
         ({"reach_sharpness": 0.0}, r"reach_sharpness must be a number in \[0.1, 100.0\]"),
         (
             {"gripper_control": "velocity"},

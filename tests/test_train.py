@@ -188,6 +188,12 @@ def test_a_python_expression_stays_a_string():
             ["--algo", "sac", "--hyperparams", "target_update_interval=0"],
             "SAC hyper-parameter target_update_interval must be in [1, inf], got 0",
         ),
+        (
+            ["--algo", "sac", "--hyperparams", "train_freq=[0, step]"],
+            "SAC hyper-parameter train_freq must be an integer >= 1 or a pair [n, unit]",
+        ),
+        (["--algo", "sac", "--hyperparams", "train_freq=[1, step, 3]"], "got [1, 'step', 3]"),
+        (["--algo", "sac", "--hyperparams", "train_freq=[1, steps]"], "(did you mean 'step'?)"),
         (["--seed", "5000000000"], "seed must be an integer in [0, 4294967295], got 5000000000"),
         (["--hyperparams", "env_kwargs={5: 1}"], "unknown env kwarg 5 for ViewPlanning-v0"),
         (
@@ -225,6 +231,7 @@ def test_a_python_expression_stays_a_string():
         (["--resume", "runs/x", "--algo", "sac"], "--algo cannot be changed when resuming"),
         (["--resume", "runs/x", "--init-from", "runs/y"], "--init-from cannot be changed"),
         (["--resume", "runs/x", "-f", "elsewhere"], "--log-folder cannot be changed"),
+        (["--run-dir", "runs/x", "-f", "runs"], "give --run-dir (the run's own folder) or --log"),
         (["--init-from", "no/such/run"], "--init-from: run folder 'no/such/run' does not exist"),
         (["--init-replay-buffer"], "--init-replay-buffer needs --init-from RUN_DIR"),
         (["--device", "tpu"], "not a torch device"),
@@ -714,6 +721,9 @@ def test_a_trained_run_without_its_final_comparison_gets_it_from_resume(tmp_path
     assert saved["timesteps"] == 64 and saved["comparison"]["policy"]["episodes"] == 2
     assert (run_dir / run_folder.FINAL_MODEL).read_bytes() == model
     assert run_folder.latest_checkpoint(run_dir) == 64
+    config = run_folder.read_config(run_dir)
+    assert config["final_episodes"] == 2
+    assert config["resume_commands"][-1].endswith(f"--resume {run_dir} --final-episodes 2")
     # Once it has its comparison, a finished run continues only with more steps.
     result = run_train("--resume", str(run_dir), "--final-episodes", "2", check=False)
     assert result.returncode == 2 and "pass a larger --timesteps" in result.stderr
@@ -792,6 +802,24 @@ def test_an_interrupted_sac_checkpoint_holds_a_transition_for_every_step_it_coun
         run_folder.checkpoint_paths(run_dir, steps)["replay_buffer"]
     )
     assert 64 <= steps < 500 and buffer.pos == steps and not buffer.full
+
+
+def test_a_ppo_evaluation_scores_the_weights_of_the_steps_it_is_labelled_with(tmp_path):
+    """Evaluated at the step passing a multiple, before PPO's update, a row labelled 64 held
+    the weights of 32 steps, and the last update was never scored."""
+    run_dir = tmp_path / "run"
+    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    assert train.main([*argv, "--save-freq", "32", "--eval-freq", "32"]) == 0
+    assert [row["timesteps"] for row in run_folder.read_evaluations(run_dir)] == [32, 64, 96]
+    policy = PPO.load(run_dir / run_folder.BEST_MODEL)
+    labelled = policy.num_timesteps
+    saved = (
+        run_dir / run_folder.FINAL_MODEL
+        if labelled == 96
+        else run_folder.checkpoint_paths(run_dir, labelled)["model"]
+    )
+    weights, same_steps = policy.policy.state_dict(), PPO.load(saved).policy.state_dict()
+    assert all(np.array_equal(weights[key], same_steps[key]) for key in weights)
 
 
 def test_a_run_killed_after_a_checkpoint_resumes_without_counting_steps_twice(tmp_path):
@@ -998,6 +1026,7 @@ def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(tmp_path):
         ("torch_threads: 1", "torch_threads: x", "torch_threads must be an integer >= 1"),
         ("normalize: false", "normalize: 'no'", "normalize must be true or false, got 'no'"),
         ("policy: MultiInputPolicy", "policy: CnnPolicy", "unknown policy 'CnnPolicy'"),
+        ("algo: ppo", "algo: sac", "algo sac did not save"),
         # Not the checkpoint's fault: SB3's load called it unreadable.
         (
             "env_kwargs:",
@@ -1140,6 +1169,15 @@ def test_a_signal_while_learning_waits_for_the_next_step_and_a_second_one_does_n
                 signal.raise_signal(signal.SIGTERM)
         with interrupts.deferred():  # each training loop starts with no request
             assert not interrupts.requested()
+            signal.raise_signal(signal.SIGINT)
+            with interrupts.saving():  # the stopped run's checkpoint: a second is reported
+                signal.raise_signal(signal.SIGINT)
+                with pytest.raises(KeyboardInterrupt):  # and a third abandons it
+                    signal.raise_signal(signal.SIGINT)
+            with interrupts.saving():
+                signal.raise_signal(signal.SIGTERM)
+            with pytest.raises(KeyboardInterrupt):  # the save is over: at once again
+                signal.raise_signal(signal.SIGINT)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -92,6 +92,13 @@ DEFAULT_MAX_GRIP_FORCE = 20.0
 #: instrument at 1 cm/step presses it with ~36 N. A cobot's compliance mode is softer: at 0.1
 #: the same push peaks at ~13 N. The arm is gravity compensated, so soft servos do not sag.
 DEFAULT_ARM_STIFFNESS = 1.0
+#: The arm's joint servos' damping ratio at the ready pose (with the gripper's inertia, after
+#: ``arm_stiffness``), the same for every joint. None keeps the model's: its MJCF asks for
+#: ``dampratio="1"``, which MuJoCo turns into each servo's kv from the joint's inertia at
+#: qpos0, the arm stretched out flat. Over the tray that leaves shoulder pan overdamped
+#: (ratio 1.84 there) and shoulder lift and elbow underdamped (0.68, 0.46), so the tool
+#: wanders off the axis an ``ee_delta`` action asks for (see the class doc).
+DEFAULT_SERVO_DAMPING_RATIO = None
 DEFAULT_RESOLUTION = 64
 #: Allowed factors of mass_range and friction_range.
 SCALE_LIMITS = (0.1, 10.0)
@@ -213,6 +220,19 @@ class InstrumentGraspEnv(gym.Env):
     about a third of the force, 36 -> 13 N in a 1 cm-per-step push onto the retractor, and
     settles on it gently; on the scissors, 82 -> 18 N still trips the protective stop).
 
+    An ``ee_delta`` action moves the set-point, from where the tool is: the tool follows
+    within the step only as far as the servos take it, and not exactly along the action's
+    axis. With the model's servo damping (``servo_damping_ratio=None``: MuJoCo's
+    ``dampratio="1"`` of the MJCF, computed at qpos0, the arm stretched out flat) the joints
+    over the tray are damped unevenly, shoulder pan at 1.84 times critical, shoulder lift and
+    elbow at 0.68 and 0.46. Measured from the ready pose, six steps of full action along one
+    axis, then four of none (tool-centre moves in mm, x y z; ``arm_stiffness=0.1``,
+    ``max_translation=0.01``): +x moves (4.5, 0, 4.1) in the sixth step, climbing at 42
+    degrees, and coasts (4.5, -0.6, 7.7) after it; +y moves 1.5 mm a step; -z moves 4.9 mm a
+    step and coasts 9.0 mm further down. With ``servo_damping_ratio=0.7`` (each arm joint at
+    0.7 of critical at the ready pose): +x (3.2, 0, 1.7), coasting (1.7, -1.0, 0.3); +y 3.6
+    mm a step; -z 3.2 mm a step, coasting 4.5 mm (``docs/training_notes.md``).
+
     **Observation** ``Dict`` (float32 unless noted), for SB3's ``MultiInputPolicy``:
 
     ==============  ==========  =============================================================
@@ -315,7 +335,7 @@ class InstrumentGraspEnv(gym.Env):
     ``impact_penalty=0.05``, ``failure_penalty=5.0``, ``terminate_on_success=False``,
     ``max_translation=0.02``, ``max_yaw=0.2``, ``max_joint_delta=0.05``,
     ``max_gripper_delta=0.004``, ``max_grip_force=20.0``, ``arm_stiffness=1.0``,
-    ``mass_range=None``, ``friction_range=None``, ``resolution=64``,
+    ``servo_damping_ratio=None``, ``mass_range=None``, ``friction_range=None``, ``resolution=64``,
     ``depth_backend='auto'``, ``episode_steps=200``, ``render_mode=None``.
 
     **Version history.** v0: initial release; ``gripper_control="delta"`` and
@@ -341,7 +361,8 @@ class InstrumentGraspEnv(gym.Env):
     refused by name). Fixed within v0 (2026-11-27): in a process forked from one that had
     made an OpenGL context (an async vector env made after a render), OpenGL hung; it is now
     refused by name (``obs_mode="rgbd"``, ``render_mode``, ``depth_backend="gl"``) and
-    ``"auto"`` falls back to ray casting.
+    ``"auto"`` falls back to ray casting. Added within v0 (2026-11-27; the default keeps the
+    model's damping, so default episodes are unchanged): ``servo_damping_ratio``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -372,6 +393,7 @@ class InstrumentGraspEnv(gym.Env):
         max_gripper_delta: float = DEFAULT_MAX_GRIPPER_DELTA,
         max_grip_force: float = DEFAULT_MAX_GRIP_FORCE,
         arm_stiffness: float = DEFAULT_ARM_STIFFNESS,
+        servo_damping_ratio: float | None = DEFAULT_SERVO_DAMPING_RATIO,
         mass_range: Sequence[float] | None = None,
         friction_range: Sequence[float] | None = None,
         resolution: int = DEFAULT_RESOLUTION,
@@ -420,6 +442,8 @@ class InstrumentGraspEnv(gym.Env):
             ("arm_stiffness", arm_stiffness, 0.01, 1.0),
         ):
             require_number(name, value, low, high)
+        if servo_damping_ratio is not None:
+            require_number("servo_damping_ratio", servo_damping_ratio, 0.1, 10.0)
         require_int("resolution", resolution, 8, 512)
         require_int("episode_steps", episode_steps, 1, 100_000)
         self.episode_steps = episode_steps
@@ -476,7 +500,13 @@ class InstrumentGraspEnv(gym.Env):
         self.intrinsics = CameraIntrinsics(width=resolution, height=resolution)
         self._depth_backend = depth_backend
         self.arm_stiffness = float(arm_stiffness)
-        self._worlds = {name: _World(name, timestep, self.arm_stiffness) for name in names}
+        self.servo_damping_ratio = (
+            None if servo_damping_ratio is None else float(servo_damping_ratio)
+        )
+        self._worlds = {
+            name: _World(name, timestep, self.arm_stiffness, self.servo_damping_ratio)
+            for name in names
+        }
         if gripper_control == "force":
             for world in self._worlds.values():
                 world.gripper.use_force_commands()
@@ -880,7 +910,13 @@ class _World:
 
     PREFIX = "instrument/"
 
-    def __init__(self, instrument: str, timestep: float, arm_stiffness: float) -> None:
+    def __init__(
+        self,
+        instrument: str,
+        timestep: float,
+        arm_stiffness: float,
+        servo_damping_ratio: float | None = DEFAULT_SERVO_DAMPING_RATIO,
+    ) -> None:
         spec = load_scene_spec()
         attach_gripper(spec)
         self.tray = add_tray(spec)
@@ -924,6 +960,8 @@ class _World:
         model.actuator_gainprm[self._arm_actuators, 0] *= arm_stiffness
         model.actuator_biasprm[self._arm_actuators, 1] *= arm_stiffness
         model.actuator_biasprm[self._arm_actuators, 2] *= math.sqrt(arm_stiffness)
+        if servo_damping_ratio is not None:
+            self._damp_at_ready_pose(servo_damping_ratio)
         self._camera_id = model.camera(WRIST_CAMERA).id
         robot = model.body_rootid[model.site_bodyid[self._tcp_site]]
         self._on_robot = model.body_rootid[model.geom_bodyid] == robot
@@ -1010,6 +1048,31 @@ class _World:
             )
         self.arm.set_qpos(ready.qpos)
         self.gripper.set_opening(opening)
+
+    def _damp_at_ready_pose(self, ratio: float) -> None:
+        """Set each arm servo's kv for damping ``ratio`` at the ready pose: kv = 2 ratio
+        sqrt(kp m), m the joint's diagonal entry of the mass matrix there (armature included)."""
+        model = self.model
+        ready = self.arm.solve_ik(
+            READY_TCP,
+            tool_down(0.0),
+            site=TCP_SITE,
+            seed_qpos=HOME_QPOS,
+            method="analytic",
+            check_collisions=False,
+        )
+        scratch = mujoco.MjData(model)
+        scratch.qpos[self.arm.qpos_indices] = ready.qpos
+        mujoco.mj_forward(model, scratch)
+        unit, column = np.zeros(model.nv), np.zeros(model.nv)
+        for actuator in self._arm_actuators:
+            dof = model.jnt_dofadr[model.actuator_trnid[actuator, 0]]
+            unit[:] = 0.0
+            unit[dof] = 1.0
+            mujoco.mj_mulM(model, scratch, column, unit)
+            stiffness = model.actuator_gainprm[actuator, 0]
+            kv = 2.0 * ratio * math.sqrt(stiffness * column[dof])
+            model.actuator_biasprm[actuator, 2] = -kv
 
     def _robot_touches_anything(self) -> bool:
         """Whether a geom of the arm or gripper, as posed now, overlaps one of the scene's."""
