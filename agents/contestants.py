@@ -248,8 +248,6 @@ def _normalizer_beside(model_path: Path) -> Path:
     return model_path.parent / run_folder.FINAL_NORMALIZER
 
 
-#: A hyper-parameter only this algorithm saves in an SB3 zip's ``data``. The policy class
-#: does not tell: PPO's lives in ``stable_baselines3.common.policies``, as A2C's does.
 def _algo_in_zip(model_path: Path) -> str:
     """The algorithm that saved an SB3 model zip."""
     try:

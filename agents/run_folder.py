@@ -249,7 +249,8 @@ def write_text_atomically(path: Path, text: str) -> None:
     save_atomically(lambda temporary: temporary.write_text(text), path)
 
 
-#: A key of an SB3 model zip's ``data`` record only that algorithm saves.
+#: A hyper-parameter only this algorithm saves in an SB3 zip's ``data``. The policy class
+#: does not tell: PPO's lives in ``stable_baselines3.common.policies``, as A2C's does.
 ALGO_SIGNATURES = {"ppo": "clip_range", "sac": "target_entropy"}
 
 
@@ -259,7 +260,7 @@ def saved_algorithm(path: Path) -> str | None:
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data"))
-        data["policy_class"]["__module__"]
+        data["policy_class"]["__module__"]  # what every SB3 model's record names
     except (zipfile.BadZipFile, KeyError, ValueError, TypeError, OSError) as error:
         raise UnreadableFileError(
             f"{str(path)!r} is not a stable-baselines3 model zip ({error})", path
