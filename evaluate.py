@@ -119,8 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     last_seed = args.seed + args.episodes - 1  # one seed per episode
     if last_seed > MAX_SEED:  # as train.py's: torch's generator refused seeds from 2**64
         parser.error(
-            f"--seed must be at most {MAX_SEED - args.episodes + 1} for {args.episodes} "
-            f"episodes (their seeds run to {last_seed}, above {MAX_SEED}), got {args.seed}"
+            f"--seed must be at most {MAX_SEED - args.episodes + 1} with --episodes "
+            f"{args.episodes} (their seeds run to {last_seed}, above {MAX_SEED}), got {args.seed}"
         )
     if problem := mujoco_import_problem():
         parser.error(problem)

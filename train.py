@@ -102,12 +102,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     # A scheduler's SIGTERM (pre-emption, `kill`) saves a checkpoint just as Ctrl-C does.
     interrupts.install()
-    if problem := mujoco_import_problem():
-        parser.error(problem)
     if args.run_dir and args.log_folder:
         parser.error(
             "give --run-dir (the run's own folder) or --log-folder (a folder of runs), not both"
         )
+    if problem := mujoco_import_problem():
+        parser.error(problem)
     # Heavy imports (torch, SB3, MuJoCo, open3d) after parsing, so --help and flag errors are
     # instant; signals wait for them: a Ctrl-C landing in open3d's import became its
     # ImportError ("initialization failed"), a traceback and exit 1.

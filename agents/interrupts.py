@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import signal
-import sys
 from collections.abc import Iterator
 
 _state = {"deferring": False, "requested": False, "saving": False, "warned": False}
@@ -41,7 +41,9 @@ def _handler(signum, frame) -> None:
         return
     if _state["saving"] and not _state["warned"]:
         _state["warned"] = True
-        print("\nsaving the checkpoint first; signal again to abandon it", file=sys.stderr)
+        # os.write, not print: a handler that prints while the main thread prints raises
+        # "reentrant call" in Python's buffered writer.
+        os.write(2, b"\nsaving the checkpoint first; signal again to abandon it\n")
         return
     raise KeyboardInterrupt
 

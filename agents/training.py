@@ -600,6 +600,8 @@ class PeriodicEvaluation(_Periodic):
             self._act_if_due()
 
     def act(self) -> None:
+        if interrupts.requested():
+            return  # learn() stops at the next step; an evaluation would be cut short
         try:
             self.evaluate()
         except _StopRequested:
@@ -909,6 +911,7 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
     steps = run_folder.latest_checkpoint(run_dir)
     if steps is None:
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no checkpoint to resume from")
+    saved_total = config["n_timesteps"]
     if n_timesteps is not None:
         config["n_timesteps"] = int_at_least("timesteps", n_timesteps)
     checks = {
@@ -933,8 +936,9 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
         trained = (run_dir / run_folder.FINAL_MODEL).is_file()
         if config["final_episodes"] and trained and "comparison" not in result:
             print(f"{str(run_dir)!r} finished training; running its final comparison")
-            # Recorded as any resume is: its command, and a --final-episodes it changed.
-            run_folder.write_config(run_dir, config)
+            # Recorded as any resume is: its command, and a --final-episodes it changed (not
+            # a -n below the steps trained, which trains nothing).
+            run_folder.write_config(run_dir, {**config, "n_timesteps": max(saved_total, steps)})
             return _final_comparison(run_dir, config, result)
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {config['n_timesteps']} steps; "

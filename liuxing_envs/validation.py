@@ -14,13 +14,15 @@ import numpy as np
 def require_choice(name: str, value, allowed) -> None:
     # An array compares element by element: one element would pass as that element (and be
     # kept as an array), more would raise numpy's ambiguous-truth error, which names nothing.
-    # A switch takes a bool, not 1, 1.0 or 1+0j (which equal True, and would be recorded as
-    # given).
-    switch = is_number(value) or isinstance(value, complex | np.complexfloating)
+    # A switch takes a bool, not what equals one (1, 1.0, 1+0j, numpy's True_): each would be
+    # recorded in a run's config as given, and numpy's does not even write to YAML.
     if (
         isinstance(value, np.ndarray)
         or value not in allowed
-        or (switch and any(isinstance(choice, bool) for choice in allowed))
+        or (
+            not isinstance(value, bool)
+            and any(isinstance(choice, bool) and choice == value for choice in allowed)
+        )
     ):
         raise ValueError(f"{name}={value!r} is not allowed; choose one of {list(allowed)}")
 

@@ -344,11 +344,11 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
         (["--env", "ViewPlanning-v0", "--seed", "-1"], "--seed must be 0 or more"),
         (
             ["--env", "InstrumentGrasp-v0", "--seed", str(2**64), "--episodes", "1"],
-            "--seed must be at most 4294967295 for 1 episodes (their seeds run to 1844674407",
+            "--seed must be at most 4294967295 with --episodes 1 (their seeds run to 1844674407",
         ),
         (
             ["--env", "ViewPlanning-v0", "--seed", str(2**32 - 1), "--episodes", "2"],
-            "--seed must be at most 4294967294 for 2 episodes (their seeds run to 4294967296,",
+            "--seed must be at most 4294967294 with --episodes 2 (their seeds run to 4294967296,",
         ),
         (
             ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "objects=[no/such.obj]"],

@@ -822,6 +822,21 @@ def test_a_ppo_evaluation_scores_the_weights_of_the_steps_it_is_labelled_with(tm
     assert all(np.array_equal(weights[key], same_steps[key]) for key in weights)
 
 
+def test_a_resumed_run_makes_up_the_evaluation_a_stop_cut_short(tmp_path):
+    """A stop during the evaluation at 96 steps: not recorded, and the checkpoint is at 96."""
+    run_dir = tmp_path / "run"
+    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    assert train.main([*argv, "--save-freq", "32", "--eval-freq", "32"]) == 0
+    history = run_folder.read_evaluations(run_dir)
+    path = run_dir / run_folder.EVALUATIONS
+    path.write_text("".join(path.read_text().splitlines(keepends=True)[:-1]))
+    assert [row["timesteps"] for row in run_folder.read_evaluations(run_dir)] == [32, 64]
+    assert train.main(["--resume", str(run_dir), "-n", "128", "--no-progress-bar"]) == 0
+    made_up = run_folder.read_evaluations(run_dir)
+    assert [row["timesteps"] for row in made_up] == [32, 64, 96, 128]
+    assert made_up[2]["mean_return"] == history[2]["mean_return"]  # the same weights, scored
+
+
 def test_a_run_killed_after_a_checkpoint_resumes_without_counting_steps_twice(tmp_path):
     """Killed (out of memory, SIGKILL) after its checkpoint at 32 steps, a run had logged
     evaluations and episodes to 96: resumed from 32, its history went 32, 64, 96, 64, 96 and

@@ -446,6 +446,7 @@ def test_the_procedural_set_is_its_64_shapes():
         # A switch takes a bool: 1 would be recorded in a run's config as given.
         ({"privileged": 1}, r"privileged=1 is not allowed; choose one of \[False, True\]"),
         ({"terminate_on_success": 1 + 0j}, r"terminate_on_success=\(1\+0j\) is not allowed"),
+        ({"observe_free_space": np.True_}, r"observe_free_space=.*True.* is not allowed"),
         ({"filter_arm_points": np.float64(0.0)}, "filter_arm_points=.*0.0.* is not allowed"),
     ],
 )

@@ -92,12 +92,14 @@ DEFAULT_MAX_GRIP_FORCE = 20.0
 #: instrument at 1 cm/step presses it with ~36 N. A cobot's compliance mode is softer: at 0.1
 #: the same push peaks at ~13 N. The arm is gravity compensated, so soft servos do not sag.
 DEFAULT_ARM_STIFFNESS = 1.0
-#: The arm's joint servos' damping ratio at the ready pose (with the gripper's inertia, after
-#: ``arm_stiffness``), the same for every joint. None keeps the model's: its MJCF asks for
-#: ``dampratio="1"``, which MuJoCo turns into each servo's kv from the joint's inertia at
-#: qpos0, the arm stretched out flat. Over the tray that leaves shoulder pan overdamped
-#: (ratio 1.84 there) and shoulder lift and elbow underdamped (0.68, 0.46), so the tool
-#: wanders off the axis an ``ee_delta`` action asks for (see the class doc).
+#: The arm's joint servos' damping ratio at the ready pose, the same for every joint: kv = 2
+#: ratio sqrt(kp m), m the joint's entry on the mass matrix's diagonal there (the joint moved
+#: alone, the others held; the gripper's inertia and ``arm_stiffness`` included). None keeps
+#: the model's: its MJCF asks for ``dampratio="1"``, which MuJoCo turns into each kv from the
+#: joint's effective inertia at qpos0, the arm stretched out flat. Over the tray that leaves
+#: shoulder pan overdamped (1.91 there, by the measure above) and shoulder lift and elbow
+#: underdamped (0.69, 0.48), so the tool wanders off the axis an ``ee_delta`` action asks
+#: for (see the class doc).
 DEFAULT_SERVO_DAMPING_RATIO = None
 DEFAULT_RESOLUTION = 64
 #: Allowed factors of mass_range and friction_range.
@@ -224,8 +226,10 @@ class InstrumentGraspEnv(gym.Env):
     within the step only as far as the servos take it, and not exactly along the action's
     axis. With the model's servo damping (``servo_damping_ratio=None``: MuJoCo's
     ``dampratio="1"`` of the MJCF, computed at qpos0, the arm stretched out flat) the joints
-    over the tray are damped unevenly, shoulder pan at 1.84 times critical, shoulder lift and
-    elbow at 0.68 and 0.46. Measured from the ready pose, six steps of full action along one
+    over the tray are damped unevenly, shoulder pan at 1.91 times critical, shoulder lift and
+    elbow at 0.69 and 0.48, the wrists at 0.93-1.00 (by ``servo_damping_ratio``'s measure;
+    by MuJoCo's, the other joints free, 2.02, 0.84, 0.59 and 0.97-1.01). Measured from the
+    ready pose, six steps of full action along one
     axis, then four of none (tool-centre moves in mm, x y z; ``arm_stiffness=0.1``,
     ``max_translation=0.01``): +x moves (4.5, 0, 4.1) in the sixth step, climbing at 42
     degrees, and coasts (4.5, -0.6, 7.7) after it; +y moves 1.5 mm a step; -z moves 4.9 mm a
@@ -1061,6 +1065,8 @@ class _World:
             method="analytic",
             check_collisions=False,
         )
+        if not ready.success:
+            raise RuntimeError("the arm cannot reach the ready pose to damp its servos there")
         scratch = mujoco.MjData(model)
         scratch.qpos[self.arm.qpos_indices] = ready.qpos
         mujoco.mj_forward(model, scratch)

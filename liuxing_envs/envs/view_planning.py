@@ -316,8 +316,9 @@ class ViewPlanningEnv(gym.Env):
     a context, where it hung (``"auto"`` falls back to ray casting). A ``reconstruct()``
     record pickles, so a vector env's ``call("reconstruct")`` no longer kills its workers.
     ``copy.deepcopy(env)`` (2026-11-27) shares the per-process caches a second env would share
-    (ground truth, stand-in scenes' models, coverage grids): +93 MiB and 0.23 s a copy of the
-    default env, against +306 MiB and 0.55 s before and +74 MiB and 0.22 s for a new env.
+    (ground truth, stand-in scenes' models, coverage grids): +93 MiB and 0.23 s a copy of an
+    env with ray-cast depth after a step, against +306 MiB and 0.55 s before and +74 MiB and
+    0.22 s for a new env; with OpenGL depth the copy's first image adds its own context.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
