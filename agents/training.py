@@ -614,7 +614,7 @@ class PeriodicEvaluation(_Periodic):
         )
         returns = [episode["return"] for episode in episodes]
         row = {
-            "timesteps": int(self.num_timesteps),
+            "timesteps": int(self.model.num_timesteps),  # the callback's lags outside on_step
             "mean_return": float(np.mean(returns)),
             "std_return": float(np.std(returns)),
             "mean_metric": float(np.mean([episode[self.task.metric] for episode in episodes])),
