@@ -596,7 +596,7 @@ class PeriodicEvaluation(_Periodic):
             self._act_if_due()
 
     def _on_training_end(self) -> None:
-        if self._after_update and not interrupts.requested():
+        if self._after_update:
             self._act_if_due()
 
     def act(self) -> None:
@@ -911,9 +911,8 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
     steps = run_folder.latest_checkpoint(run_dir)
     if steps is None:
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no checkpoint to resume from")
-    saved_total = config["n_timesteps"]
-    if n_timesteps is not None:
-        config["n_timesteps"] = int_at_least("timesteps", n_timesteps)
+    # The run's total changes only once it trains on: a finished run keeps its own.
+    total = config["n_timesteps"] if n_timesteps is None else int_at_least("timesteps", n_timesteps)
     checks = {
         "device": check_device,
         "final_episodes": lambda value: int_at_least("final-episodes", value, minimum=0),
@@ -930,20 +929,22 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
     config["start_curriculum"] = check_start_curriculum(
         config["env_id"], config["start_curriculum"]
     )
-    if steps >= config["n_timesteps"]:
+    if steps >= total:
         # Stopped during (or trained without) the final comparison its config asks for.
         result = _read_result(run_dir, steps)
         trained = (run_dir / run_folder.FINAL_MODEL).is_file()
         if config["final_episodes"] and trained and "comparison" not in result:
             print(f"{str(run_dir)!r} finished training; running its final comparison")
-            # Recorded as any resume is: its command, and a --final-episodes it changed (not
-            # a -n below the steps trained, which trains nothing).
-            run_folder.write_config(run_dir, {**config, "n_timesteps": max(saved_total, steps)})
+            # Recorded as any resume is: its command, and a --final-episodes it changed.
+            run_folder.write_config(
+                run_dir, {**config, "n_timesteps": max(config["n_timesteps"], steps)}
+            )
             return _final_comparison(run_dir, config, result)
         raise ConfigError(
-            f"{str(run_dir)!r} already reached {steps} of its {config['n_timesteps']} steps; "
+            f"{str(run_dir)!r} already reached {steps} of its {total} steps; "
             "pass a larger --timesteps to continue it"
         )
+    config["n_timesteps"] = total
     paths = run_folder.checkpoint_paths(run_dir, steps)
     torch.set_num_threads(config["torch_threads"])
     monitors_before = set((run_dir / run_folder.MONITOR).glob("*"))

@@ -1037,14 +1037,7 @@ class _World:
     def _place_tool(self, tcp, tool_yaw: float, opening: float, tool_start) -> None:
         """Teleport the arm, pointing down, to the tool centre ``tcp`` turned by ``tool_yaw``,
         with the fingers ``opening`` apart."""
-        ready = self.arm.solve_ik(
-            tcp,
-            tool_down(tool_yaw),
-            site=TCP_SITE,
-            seed_qpos=HOME_QPOS,
-            method="analytic",
-            check_collisions=False,
-        )
+        ready = self._pointing_down(tcp, tool_yaw)
         if not ready.success:
             raise ValueError(
                 f"reset option tool_start={np.asarray(tool_start).tolist()} puts the tool centre "
@@ -1053,18 +1046,22 @@ class _World:
         self.arm.set_qpos(ready.qpos)
         self.gripper.set_opening(opening)
 
-    def _damp_at_ready_pose(self, ratio: float) -> None:
-        """Set each arm servo's kv for damping ``ratio`` at the ready pose: kv = 2 ratio
-        sqrt(kp m), m the joint's diagonal entry of the mass matrix there (armature included)."""
-        model = self.model
-        ready = self.arm.solve_ik(
-            READY_TCP,
-            tool_down(0.0),
+    def _pointing_down(self, tcp, tool_yaw: float):
+        """The arm's IK (closed form, nearest home) for the tool pointing down at ``tcp``."""
+        return self.arm.solve_ik(
+            tcp,
+            tool_down(tool_yaw),
             site=TCP_SITE,
             seed_qpos=HOME_QPOS,
             method="analytic",
             check_collisions=False,
         )
+
+    def _damp_at_ready_pose(self, ratio: float) -> None:
+        """Set each arm servo's kv for damping ``ratio`` at the ready pose: kv = 2 ratio
+        sqrt(kp m), m the joint's diagonal entry of the mass matrix there (armature included)."""
+        model = self.model
+        ready = self._pointing_down(READY_TCP, 0.0)
         if not ready.success:
             raise RuntimeError("the arm cannot reach the ready pose to damp its servos there")
         scratch = mujoco.MjData(model)
