@@ -343,7 +343,8 @@ def default_hyperparams(algo: str, env_id: str, config_file: str | Path | None =
         entry = content
     else:
         raise ConfigError(
-            f"{str(path)!r} has no entry for {env_id!r}; it has: {', '.join(content) or 'none'}"
+            f"{str(path)!r} has no entry for {env_id!r}{closest(env_id, map(str, content))}; "
+            f"it has: {', '.join(map(str, content)) or 'none'}"
         )
     if not isinstance(entry, dict):
         raise ConfigError(f"the entry for {env_id!r} in {str(path)!r} must be a mapping")

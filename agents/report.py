@@ -65,7 +65,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     envs = _open_envs(contestants)  # fails on a misfit model before any episode runs
     out = Path(out)
     try:
-        prepare_output_folder(out, files=(REPORT_JSON, REPORT_MD))
+        prepare_output_folder(out, files=(REPORT_JSON, REPORT_MD, run_folder.GIT_DIFF))
     except OutputFolderError as error:
         for env in envs.values():
             env.close()
@@ -106,7 +106,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         "settings": asdict(settings),
         "seeds": [seeds.start, seeds.stop - 1],
         "versions": run_folder.library_versions(),
-        "git_commit": run_folder.git_commit(),
+        **_source(out),
         "environments": {
             env_id: _environment_section(env_id, [r for r in results if r["env_id"] == env_id])
             for env_id in dict.fromkeys(c.env_id for c in contestants)
@@ -128,6 +128,13 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
     _write_report(report, out)
     return report
+
+
+def _source(out: Path) -> dict:
+    """The commit evaluated, and its uncommitted changes in ``out`` (an earlier report's
+    patch there would describe other code, so it goes first)."""
+    (out / run_folder.GIT_DIFF).unlink(missing_ok=True)
+    return run_folder.record_source(out)
 
 
 def _write_report(report: dict, out: Path) -> None:
@@ -533,7 +540,9 @@ def markdown(report: dict) -> str:
         "",
         f"Created {report['created']} by `{report['command']}` in "
         f"{report['wall_seconds'] / 60:.1f} min",
-        f"(git {report['git_commit'] or 'unknown'}; "
+        f"(git {report['git_commit'] or 'unknown'}"
+        + (f" with the changes in `{report['git_diff']}`" if report.get("git_diff") else "")
+        + "; "
         + ", ".join(f"{k} {v}" for k, v in report["versions"].items() if k != "platform")
         + ").",
         "",

@@ -3,6 +3,8 @@
 Layout (file names are constants here, so train.py, evaluate.py and tests agree)::
 
     <run>/config.yml          resolved configuration, command line, seed, versions, git commit
+    <run>/git_diff.patch      the checkout's uncommitted changes when it trained (commit
+                              ``-dirty``; a resume's: git_diff_resume<k>.patch)
     <run>/model.zip           final policy            (+ vecnormalize.pkl when normalising)
     <run>/best_model.zip      best periodic evaluation (+ best_vecnormalize.pkl)
     <run>/checkpoints/        model_<steps>_steps.zip, replay_buffer_<steps>_steps.pkl (SAC),
@@ -52,6 +54,7 @@ LEARNING_CURVE = "learning_curve.png"
 RESULT = "result.json"
 DEMONSTRATIONS = "demonstrations.json"
 LOCK = ".lock"
+GIT_DIFF = "git_diff.patch"
 
 #: Everything a run writes into its folder.
 ENTRIES = (
@@ -67,6 +70,7 @@ ENTRIES = (
     LEARNING_CURVE,
     RESULT,
     DEMONSTRATIONS,
+    GIT_DIFF,
     LOCK,
 )
 
@@ -180,6 +184,34 @@ def git_commit(directory: Path | None = None) -> str | None:
     except (OSError, subprocess.CalledProcessError):
         return None
     return f"{commit}-dirty" if dirty else commit
+
+
+def git_diff(directory: Path | None = None) -> str:
+    """The uncommitted changes to tracked files of the checkout holding this code (``git diff
+    HEAD``: what a ``-dirty`` commit lacks), or "" where there are none or no checkout."""
+    directory = directory or Path(__file__).resolve().parent
+    try:
+        return subprocess.run(
+            ["git", "diff", "HEAD"], cwd=directory, capture_output=True, text=True, check=True
+        ).stdout
+    except (OSError, subprocess.CalledProcessError, UnicodeDecodeError):
+        return ""
+
+
+def record_source(
+    folder: Path, patch_name: str = GIT_DIFF, checkout: Path | None = None
+) -> dict[str, str | None]:
+    """The commit of the code at work (``checkout``: this code's), for a config or report,
+    and where a dirty checkout's changes went: written to ``folder/patch_name`` so the run can
+    be rebuilt (``git checkout COMMIT && git apply PATCH``), not just dated."""
+    commit = git_commit(checkout)
+    if commit is None or not commit.endswith("-dirty"):
+        return {"git_commit": commit}
+    diff = git_diff(checkout)
+    if not diff:
+        return {"git_commit": commit}
+    write_text_atomically(Path(folder) / patch_name, diff)
+    return {"git_diff": patch_name, "git_commit": commit}
 
 
 @contextmanager
@@ -352,15 +384,25 @@ def read_curriculum_state(path: Path) -> dict | None:
 
 
 def write_config(run_dir: Path, config: dict) -> None:
-    """Writes ``config`` with this process's command line, library versions and commit. A
-    config read back from a run (resuming) keeps its first command and lists the later ones
-    under ``resume_commands``."""
+    """Writes ``config`` with this process's command line, library versions and commit (and
+    its uncommitted changes, see record_source). A config read back from a run (resuming)
+    keeps its first command, versions and commit, and lists each later command under
+    ``resume_commands`` and its versions and commit under ``resume_sources``."""
     command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])
-    if "command" in config:
-        later = {"resume_commands": [*config.get("resume_commands", []), command]}
+    earlier = {key: value for key, value in config.items() if key != "git_commit"}
+    if "command" not in config:
+        source = record_source(run_dir)
+        document = {**earlier, "command": command, "versions": library_versions(), **source}
     else:
-        later = {"command": command}
-    document = {**config, **later, "versions": library_versions(), "git_commit": git_commit()}
+        resumes = [*config.get("resume_commands", []), command]
+        source = record_source(run_dir, f"git_diff_resume{len(resumes)}.patch")
+        resumed = {"versions": library_versions(), **source}
+        document = {
+            **earlier,
+            "resume_commands": resumes,
+            "resume_sources": [*config.get("resume_sources", []), resumed],
+            "git_commit": config.get("git_commit"),
+        }
     write_text_atomically(Path(run_dir) / CONFIG, yaml.safe_dump(document, sort_keys=False))
 
 

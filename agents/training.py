@@ -83,6 +83,8 @@ DEFAULT_DEVICE = "auto"
 DEFAULT_POLICY = "MultiInputPolicy"
 #: Every observation preset of both envs is a Dict, which only SB3's MultiInputPolicy takes.
 POLICIES = (DEFAULT_POLICY,)
+#: ``policy_kwargs`` names that stand for an SB3 argument (see policy_kwargs()).
+POLICY_KWARG_ALIASES = ("features_extractor",)
 #: The torch device types training is tested on (--device; "auto" picks one of them).
 SUPPORTED_DEVICE_TYPES = ("cpu", "cuda")
 DEFAULT_EVAL_FREQ = 5_000  # env steps between periodic evaluations
@@ -198,6 +200,7 @@ def resolve_config(
     )
     named = config["hyperparams"].get("policy_kwargs")
     policy_kwargs(named)  # fails early on bad names
+    check_policy_kwarg_names(algo, config["policy"], named or {})
     if named and "net_arch" in named:
         check_net_arch(algo, named["net_arch"])
     return config
@@ -321,6 +324,21 @@ def check_device(device: str) -> str:
             "has no usable GPU; use --device cpu or install a CUDA build (see README)"
         )
     return device
+
+
+def check_policy_kwarg_names(algo: str, policy: str, named: Mapping) -> None:
+    """A misspelt ``policy_kwargs`` entry, refused before the run folder is made (SB3 would
+    refuse it only when building the model, without naming what was meant)."""
+    policy_class = ALGO_CLASSES[algo].policy_aliases[policy]
+    taken = inspect.signature(policy_class.__init__).parameters
+    set_by_sb3 = {"self", "observation_space", "action_space", "lr_schedule"}
+    allowed = sorted({*taken, *POLICY_KWARG_ALIASES} - set_by_sb3)
+    for name in named:
+        if name not in allowed:
+            raise ConfigError(
+                f"unknown policy_kwargs entry {name!r} for {algo.upper()}'s {policy}"
+                f"{closest(name, allowed)}; allowed: {', '.join(allowed)}"
+            )
 
 
 def policy_kwargs(named: Mapping | None) -> dict:

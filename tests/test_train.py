@@ -162,6 +162,11 @@ def test_a_python_expression_stays_a_string():
             ["--hyperparams", "policy_kwargs.features_extractor=percept"],
             "did you mean 'perception'",
         ),
+        (["--hyperparams", "policy_kwargs.net_arc=[64]"], "did you mean 'net_arch'"),
+        (
+            ["--algo", "sac", "--hyperparams", "policy_kwargs.ortho_init=false"],
+            "unknown policy_kwargs entry 'ortho_init' for SAC's MultiInputPolicy",
+        ),
         (["--env-kwargs", "view_budgt=3"], "did you mean 'view_budget'"),
         (["--hyperparams", "eval_env_kwargs=validation"], "eval_env_kwargs must be a mapping"),
         (
@@ -285,7 +290,7 @@ def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
     "hyperparam, reason",
     [
         ("batch_size=1", "`batch_size` must be greater than 1"),
-        ("policy_kwargs.foo=1", "unexpected keyword argument 'foo'"),
+        ("policy_kwargs.features_extractor_kwargs={foo: 1}", "unexpected keyword argument 'foo'"),
     ],
 )
 def test_a_hyperparameter_sb3_refuses_leaves_no_run_folder(hyperparam, reason, tmp_path, capsys):
@@ -402,6 +407,10 @@ def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
     assert (
         "has no entry for 'ViewPlanning-v0'; it has: InstrumentGrasp-v0" in capsys.readouterr().err
     )
+    config.write_text(yaml.safe_dump({"ViewPlaning-v0": {}, "InstrumentGrasp-v0": {}}))
+    with pytest.raises(SystemExit):
+        train.main(["--config", str(config)])
+    assert "(did you mean 'ViewPlaning-v0'?); it has: " in capsys.readouterr().err
 
 
 def test_the_periodic_evaluation_can_choose_the_best_model_on_other_objects(tmp_path):
@@ -1093,6 +1102,54 @@ def test_a_config_without_optional_settings_resumes_with_their_defaults(tmp_path
         1,
     )
     assert run_folder.latest_checkpoint(run_dir) == 128
+
+
+def git(checkout: Path, *args: str) -> None:
+    subprocess.run(["git", *args], cwd=checkout, check=True, capture_output=True)
+
+
+def test_a_dirty_checkout_leaves_the_changes_that_ran_beside_its_commit(tmp_path):
+    """A ``-dirty`` commit alone does not say what code ran; the patch beside it does."""
+    checkout, out = tmp_path / "checkout", tmp_path / "run"
+    checkout.mkdir()
+    out.mkdir()
+    (checkout / "physics.py").write_text("damping = 1.0\n")
+    git(checkout, "init", "-q")
+    git(checkout, "add", ".")
+    git(checkout, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
+    clean = run_folder.record_source(out, checkout=checkout)
+    assert list(clean) == ["git_commit"] and len(clean["git_commit"]) == 40
+    assert not (out / run_folder.GIT_DIFF).exists()
+
+    (checkout / "physics.py").write_text("damping = 0.7\n")
+    dirty = run_folder.record_source(out, checkout=checkout)
+    assert dirty == {"git_diff": run_folder.GIT_DIFF, "git_commit": clean["git_commit"] + "-dirty"}
+    git(checkout, "checkout", "--", "physics.py")
+    git(checkout, "apply", str(out / run_folder.GIT_DIFF))  # rebuilds the code that ran
+    assert (checkout / "physics.py").read_text() == "damping = 0.7\n"
+
+
+def test_a_resume_keeps_the_runs_first_commit_and_records_its_own(tmp_path, monkeypatch):
+    """A resume used to overwrite the run's commit and versions with its own: a run trained
+    at one commit and resumed at another then named only the second."""
+    config = {"env_id": "InstrumentGrasp-v0", "algo": "sac", "seed": 0, "n_timesteps": 64}
+    monkeypatch.setattr(sys, "argv", ["train.py", "--algo", "sac"])
+    run_folder.write_config(tmp_path, config)
+    path = tmp_path / run_folder.CONFIG
+    first = yaml.safe_load(path.read_text())
+    first["git_commit"], first["versions"]["torch"] = "0" * 40, "older"
+    path.write_text(yaml.safe_dump(first, sort_keys=False))
+
+    for resume in (1, 2):
+        monkeypatch.setattr(sys, "argv", ["train.py", "--resume", str(tmp_path)])
+        run_folder.write_config(tmp_path, yaml.safe_load(path.read_text()))
+        config = yaml.safe_load(path.read_text())
+        assert (config["command"], config["git_commit"]) == ("train.py --algo sac", "0" * 40)
+        assert config["versions"]["torch"] == "older"
+        assert len(config["resume_commands"]) == len(config["resume_sources"]) == resume
+        assert config["resume_sources"][-1]["git_commit"] == run_folder.git_commit()
+        assert config["resume_sources"][-1]["versions"]["torch"] != "older"
+        assert list(config)[-1] == "git_commit"  # last, so a file cut short lacks it
 
 
 def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
