@@ -70,6 +70,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         for env in envs.values():
             env.close()
         raise ContestantError(f"cannot write the report into {str(out)!r}: {error}") from error
+    source = _source(out)  # the code as it starts: edits while it runs do not count
     seeds = range(settings.seed, settings.seed + settings.episodes)
     progress = _progress_bar(len(contestants) * settings.episodes, settings.progress)
     results = []
@@ -106,7 +107,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         "settings": asdict(settings),
         "seeds": [seeds.start, seeds.stop - 1],
         "versions": run_folder.library_versions(),
-        **_source(out),
+        **source,
         "environments": {
             env_id: _environment_section(env_id, [r for r in results if r["env_id"] == env_id])
             for env_id in dict.fromkeys(c.env_id for c in contestants)

@@ -1379,6 +1379,7 @@ def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
     episodes = run_episodes(env, load_policy(shipped), range(2000, 2020), ("is_success",))
     env.close()
     successes = sum(episode["is_success"] for episode in episodes)
-    # 16 of these 20 when shipped (a policy loaded without its normaliser grasps none, the
-    # previous shipped policy 9); the margin allows for other machines' floating point.
-    assert successes >= 12
+    # 17 of these 20 when shipped, with no hard-limit stop (a policy loaded without its
+    # normaliser grasps none; the previous shipped policies 16 and 9); the margin allows for
+    # other machines' floating point.
+    assert successes >= 13
