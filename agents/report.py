@@ -70,7 +70,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         for env in envs.values():
             env.close()
         raise ContestantError(f"cannot write the report into {str(out)!r}: {error}") from error
-    source = _source(out)  # the code as it starts: edits while it runs do not count
+    source = run_folder.Source.of_checkout()  # as it starts: edits while it runs do not count
     seeds = range(settings.seed, settings.seed + settings.episodes)
     progress = _progress_bar(len(contestants) * settings.episodes, settings.progress)
     results = []
@@ -107,7 +107,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         "settings": asdict(settings),
         "seeds": [seeds.start, seeds.stop - 1],
         "versions": run_folder.library_versions(),
-        **source,
+        "git_commit": source.commit,
         "environments": {
             env_id: _environment_section(env_id, [r for r in results if r["env_id"] == env_id])
             for env_id in dict.fromkeys(c.env_id for c in contestants)
@@ -116,7 +116,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     # The figures and videos come after every episode: write the numbers first, so that a
     # failure drawing them loses nothing.
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
-    _write_report(report, out)
+    _write_report(report, out, source)
     figures = _figures(report, out, settings)
     if settings.video_episodes:
         figures["videos"] = [
@@ -127,21 +127,17 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         ]
     report["figures"] = figures
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
-    _write_report(report, out)
+    _write_report(report, out, source)
     return report
 
 
-def _source(out: Path) -> dict:
-    """The commit evaluated, and its uncommitted changes in ``out`` (an earlier report's
-    patch there would describe other code, so it goes first)."""
-    (out / run_folder.GIT_DIFF).unlink(missing_ok=True)
-    return run_folder.record_source(out)
-
-
-def _write_report(report: dict, out: Path) -> None:
-    """report.json and report.md of ``report``. An earlier report's report.md goes first: a
-    stop between the two files must not leave it beside the new numbers it contradicts."""
+def _write_report(report: dict, out: Path, source: run_folder.Source) -> None:
+    """report.json and report.md of ``report``, and the patch of a dirty checkout beside them
+    (named in both). An earlier report's report.md goes first: a stop between the files must
+    not leave it beside the new numbers or patch it contradicts."""
     (out / REPORT_MD).unlink(missing_ok=True)
+    (out / run_folder.GIT_DIFF).unlink(missing_ok=True)
+    report.update(source.record(out))  # the commit stays where it is; git_diff comes last
     text = json.dumps(report, indent=1, default=_json_default)
     run_folder.write_text_atomically(out / REPORT_JSON, text)
     run_folder.write_text_atomically(out / REPORT_MD, markdown(report))

@@ -186,32 +186,43 @@ def git_commit(directory: Path | None = None) -> str | None:
     return f"{commit}-dirty" if dirty else commit
 
 
-def git_diff(directory: Path | None = None) -> str:
-    """The uncommitted changes to tracked files of the checkout holding this code (``git diff
-    HEAD``: what a ``-dirty`` commit lacks), or "" where there are none or no checkout."""
+def git_diff(directory: Path | None = None) -> bytes:
+    """The uncommitted changes to tracked files of the checkout holding this code, binary files
+    included, as ``git apply`` takes them (``git diff HEAD --binary``: what a ``-dirty`` commit
+    lacks), or b"" where there are none or no checkout."""
     directory = directory or Path(__file__).resolve().parent
     try:
         return subprocess.run(
-            ["git", "diff", "HEAD"], cwd=directory, capture_output=True, text=True, check=True
+            ["git", "diff", "HEAD", "--binary", "--no-ext-diff", "--no-textconv"],
+            cwd=directory,
+            capture_output=True,
+            check=True,
         ).stdout
-    except (OSError, subprocess.CalledProcessError, UnicodeDecodeError):
-        return ""
+    except (OSError, subprocess.CalledProcessError):
+        return b""
 
 
-def record_source(
-    folder: Path, patch_name: str = GIT_DIFF, checkout: Path | None = None
-) -> dict[str, str | None]:
-    """The commit of the code at work (``checkout``: this code's), for a config or report,
-    and where a dirty checkout's changes went: written to ``folder/patch_name`` so the run can
-    be rebuilt (``git checkout COMMIT && git apply PATCH``), not just dated."""
-    commit = git_commit(checkout)
-    if commit is None or not commit.endswith("-dirty"):
-        return {"git_commit": commit}
-    diff = git_diff(checkout)
-    if not diff:
-        return {"git_commit": commit}
-    write_text_atomically(Path(folder) / patch_name, diff)
-    return {"git_diff": patch_name, "git_commit": commit}
+class Source(NamedTuple):
+    """The code at work: its commit (``-dirty`` with local changes) and those changes."""
+
+    commit: str | None
+    diff: bytes
+
+    @classmethod
+    def of_checkout(cls, checkout: Path | None = None) -> Source:
+        commit = git_commit(checkout)
+        dirty = commit is not None and commit.endswith("-dirty")
+        return cls(commit, git_diff(checkout) if dirty else b"")
+
+    def record(self, folder: Path, patch_name: str = GIT_DIFF) -> dict[str, str | None]:
+        """The commit, for a config or report, and where a dirty checkout's changes went:
+        written to ``folder/patch_name`` so the run can be rebuilt (``git checkout COMMIT &&
+        git apply PATCH``), not just dated."""
+        if not self.diff:
+            return {"git_commit": self.commit}
+        with atomic_path(Path(folder) / patch_name) as temporary:
+            temporary.write_bytes(self.diff)
+        return {"git_diff": patch_name, "git_commit": self.commit}
 
 
 @contextmanager
@@ -383,20 +394,24 @@ def read_curriculum_state(path: Path) -> dict | None:
     return {"level": level, "recent": recent, "history": history}
 
 
-def write_config(run_dir: Path, config: dict) -> None:
+def write_config(run_dir: Path, config: dict, resuming: bool = False) -> None:
     """Writes ``config`` with this process's command line, library versions and commit (and
-    its uncommitted changes, see record_source). A config read back from a run (resuming)
-    keeps its first command, versions and commit, and lists each later command under
-    ``resume_commands`` and its versions and commit under ``resume_sources``."""
+    its uncommitted changes, see Source.record). Resuming, it keeps the run's first command,
+    versions and commit, and appends the resuming command to ``resume_commands`` and its
+    versions and commit to ``resume_sources``."""
     command = " ".join([Path(sys.argv[0]).name, *sys.argv[1:]])
     earlier = {key: value for key, value in config.items() if key != "git_commit"}
-    if "command" not in config:
-        source = record_source(run_dir)
+    if not resuming:
+        source = Source.of_checkout().record(run_dir)
         document = {**earlier, "command": command, "versions": library_versions(), **source}
     else:
         resumes = [*config.get("resume_commands", []), command]
-        source = record_source(run_dir, f"git_diff_resume{len(resumes)}.patch")
-        resumed = {"versions": library_versions(), **source}
+        patch_name = f"git_diff_resume{len(resumes)}.patch"
+        resumed = {
+            "command": command,
+            "versions": library_versions(),
+            **Source.of_checkout().record(run_dir, patch_name),
+        }
         document = {
             **earlier,
             "resume_commands": resumes,
@@ -563,7 +578,7 @@ def best_model_steps(run_dir: Path) -> int | None:
 
 
 #: What a shipped policy keeps of its run: enough to load, evaluate and reproduce it.
-SHIPPED_FILES = (CONFIG, BEST_MODEL, BEST_NORMALIZER, EVALUATIONS, LEARNING_CURVE, RESULT)
+SHIPPED_FILES = (CONFIG, BEST_MODEL, BEST_NORMALIZER, EVALUATIONS, LEARNING_CURVE, RESULT, GIT_DIFF)
 
 
 def ship(run_dir: Path, destination: Path) -> Path:
@@ -576,7 +591,8 @@ def ship(run_dir: Path, destination: Path) -> Path:
     if not (run_dir / BEST_MODEL).is_file():
         raise RunFolderError(f"{str(run_dir)!r} has no {BEST_MODEL} to ship")
     destination.mkdir(parents=True, exist_ok=True)
-    for name in SHIPPED_FILES:
+    resume_patches = sorted(path.name for path in run_dir.glob("git_diff_resume*.patch"))
+    for name in (*SHIPPED_FILES, *resume_patches):
         if (run_dir / name).is_file():
             shutil.copy2(run_dir / name, destination / name)
     return destination

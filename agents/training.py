@@ -955,7 +955,7 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
             print(f"{str(run_dir)!r} finished training; running its final comparison")
             # Recorded as any resume is: its command, and a --final-episodes it changed.
             run_folder.write_config(
-                run_dir, {**config, "n_timesteps": max(config["n_timesteps"], steps)}
+                run_dir, {**config, "n_timesteps": max(config["n_timesteps"], steps)}, resuming=True
             )
             return _final_comparison(run_dir, config, result)
         raise ConfigError(
@@ -1042,7 +1042,7 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
         )
         if evaluation is not None:
             evaluation.best = evaluation.best_so_far()
-    run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps})
+    run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps}, resuming=True)
     # A new stream: the resumed run must not replay the episodes it has already seen.
     model.set_random_seed(resumed_seed(config["seed"], steps))
     return _learn(

@@ -654,3 +654,29 @@ def test_a_report_stopped_after_its_numbers_leaves_no_earlier_report_md(tmp_path
     assert evaluate.main([*argv, "--seed", "7"]) == 130
     assert read_report(out)["seeds"] == [7, 7]
     assert "seeds 7-7 " in (out / "report.md").read_text()
+
+
+def test_a_report_of_a_dirty_checkout_keeps_its_changes_and_a_clean_one_drops_them(
+    tmp_path, monkeypatch
+):
+    """A report names the commit it ran at; with local changes the commit alone does not
+    say what ran, so their patch lies beside the report, and a later clean report in the
+    same folder must not leave the earlier patch beside it."""
+    from agents.contestants import baseline_contestant
+    from agents.report import Settings, evaluate
+
+    out = tmp_path / "report"
+    contestants = [baseline_contestant("random", "InstrumentGrasp-v0", {"episode_steps": 5})]
+    settings = Settings(episodes=1, seed=7, command="evaluate.py random")
+    monkeypatch.setattr(run_folder, "git_commit", lambda directory=None: "a" * 40 + "-dirty")
+    monkeypatch.setattr(run_folder, "git_diff", lambda directory=None: b"diff --git a/x b/x\n")
+    report = evaluate(contestants, settings, out)
+    assert (report["git_commit"], report["git_diff"]) == ("a" * 40 + "-dirty", "git_diff.patch")
+    assert (out / "git_diff.patch").read_bytes() == b"diff --git a/x b/x\n"
+    assert "-dirty with the changes in `git_diff.patch`" in (out / "report.md").read_text()
+
+    monkeypatch.setattr(run_folder, "git_commit", lambda directory=None: "b" * 40)
+    report = evaluate(contestants, settings, out)
+    assert report["git_commit"] == "b" * 40 and "git_diff" not in report
+    assert not (out / "git_diff.patch").exists()
+    assert "with the changes" not in (out / "report.md").read_text()

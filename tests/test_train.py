@@ -515,8 +515,12 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
         assert newest["replay_buffer"].is_file()
 
     # A shipped copy is a slim run folder that loads and acts on its own.
+    for patch in (run_folder.GIT_DIFF, "git_diff_resume1.patch"):  # as a dirty checkout leaves
+        (run_dir / patch).write_bytes(patch.encode())
     shipped = run_folder.ship(run_dir, tmp_path / "shipped")
     assert not (shipped / run_folder.CHECKPOINTS).exists()
+    assert (shipped / "git_diff_resume1.patch").read_bytes() == b"git_diff_resume1.patch"
+    assert (shipped / run_folder.GIT_DIFF).is_file()  # config.yml names what it holds
     policy = load_policy(shipped)
     assert (policy.normalizer is not None) == normalised
     env = make_env(env_id, config["env_kwargs"])
@@ -1109,47 +1113,69 @@ def git(checkout: Path, *args: str) -> None:
 
 
 def test_a_dirty_checkout_leaves_the_changes_that_ran_beside_its_commit(tmp_path):
-    """A ``-dirty`` commit alone does not say what code ran; the patch beside it does."""
+    """A ``-dirty`` commit alone does not say what code ran; the patch beside it does, binary
+    files (a policy being shipped) included."""
     checkout, out = tmp_path / "checkout", tmp_path / "run"
     checkout.mkdir()
     out.mkdir()
     (checkout / "physics.py").write_text("damping = 1.0\n")
+    (checkout / "policy.zip").write_bytes(bytes(range(256)))
     git(checkout, "init", "-q")
     git(checkout, "add", ".")
     git(checkout, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "first")
-    clean = run_folder.record_source(out, checkout=checkout)
+    clean = run_folder.Source.of_checkout(checkout).record(out)
     assert list(clean) == ["git_commit"] and len(clean["git_commit"]) == 40
     assert not (out / run_folder.GIT_DIFF).exists()
 
     (checkout / "physics.py").write_text("damping = 0.7\n")
-    dirty = run_folder.record_source(out, checkout=checkout)
+    (checkout / "policy.zip").write_bytes(bytes(range(255, -1, -1)))
+    dirty = run_folder.Source.of_checkout(checkout).record(out)
     assert dirty == {"git_diff": run_folder.GIT_DIFF, "git_commit": clean["git_commit"] + "-dirty"}
-    git(checkout, "checkout", "--", "physics.py")
+    git(checkout, "checkout", "--", ".")
     git(checkout, "apply", str(out / run_folder.GIT_DIFF))  # rebuilds the code that ran
     assert (checkout / "physics.py").read_text() == "damping = 0.7\n"
+    assert (checkout / "policy.zip").read_bytes() == bytes(range(255, -1, -1))
 
 
 def test_a_resume_keeps_the_runs_first_commit_and_records_its_own(tmp_path, monkeypatch):
     """A resume used to overwrite the run's commit and versions with its own: a run trained
-    at one commit and resumed at another then named only the second."""
+    at one commit and resumed at another then named only the second. Each resume's changes
+    to a dirty checkout go to a patch of their own."""
     config = {"env_id": "InstrumentGrasp-v0", "algo": "sac", "seed": 0, "n_timesteps": 64}
     monkeypatch.setattr(sys, "argv", ["train.py", "--algo", "sac"])
+    monkeypatch.setattr(run_folder, "git_commit", lambda directory=None: "0" * 40)  # clean
     run_folder.write_config(tmp_path, config)
     path = tmp_path / run_folder.CONFIG
     first = yaml.safe_load(path.read_text())
-    first["git_commit"], first["versions"]["torch"] = "0" * 40, "older"
+    assert first["git_commit"] == "0" * 40 and "git_diff" not in first
+    first["versions"]["torch"] = "older"
     path.write_text(yaml.safe_dump(first, sort_keys=False))
 
+    # the checkout as a resume sees it: at another commit, with local changes
+    changes = {1: b"diff --git a/x b/x\n", 2: b"diff --git a/y b/y\n"}
     for resume in (1, 2):
-        monkeypatch.setattr(sys, "argv", ["train.py", "--resume", str(tmp_path)])
-        run_folder.write_config(tmp_path, yaml.safe_load(path.read_text()))
+        monkeypatch.setattr(run_folder, "git_commit", lambda directory=None: "1" * 40 + "-dirty")
+        monkeypatch.setattr(
+            run_folder, "git_diff", lambda directory=None, resume=resume: changes[resume]
+        )
+        monkeypatch.setattr(sys, "argv", ["train.py", "--resume", str(tmp_path), f"-n{resume}"])
+        run_folder.write_config(tmp_path, yaml.safe_load(path.read_text()), resuming=True)
         config = yaml.safe_load(path.read_text())
         assert (config["command"], config["git_commit"]) == ("train.py --algo sac", "0" * 40)
         assert config["versions"]["torch"] == "older"
         assert len(config["resume_commands"]) == len(config["resume_sources"]) == resume
-        assert config["resume_sources"][-1]["git_commit"] == run_folder.git_commit()
-        assert config["resume_sources"][-1]["versions"]["torch"] != "older"
+        latest = config["resume_sources"][-1]
+        assert latest["command"] == config["resume_commands"][-1] and latest["command"].endswith(
+            f"-n{resume}"
+        )
+        assert latest["git_commit"] == "1" * 40 + "-dirty"
+        assert latest["versions"]["torch"] != "older"
+        assert (tmp_path / latest["git_diff"]).read_bytes() == changes[resume]
         assert list(config)[-1] == "git_commit"  # last, so a file cut short lacks it
+    assert sorted(p.name for p in tmp_path.glob("*.patch")) == [
+        "git_diff_resume1.patch",
+        "git_diff_resume2.patch",
+    ]
 
 
 def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
