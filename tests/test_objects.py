@@ -509,6 +509,40 @@ def test_box_bottom_is_never_observable_and_top_always_is():
     assert not observable_mask(mesh, points, normals, below, table=True).any()
 
 
+def _observable_mask_in_a_forked_child(mesh, points, normals, results) -> None:
+    try:
+        observable_mask(mesh, points, normals, default_observation_viewpoints())
+        results.put("returned")
+    except RuntimeError as error:
+        results.put(str(error))
+
+
+def test_a_forked_child_refuses_the_observable_surface_instead_of_hanging(monkeypatch):
+    """The observable-surface precomputation (an object not yet cached, in a worker forked
+    after open3d was imported) waited forever in open3d's ray casting; it now raises,
+    naming spawn. The parent still computes it."""
+    import multiprocessing
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)  # with it at 1 nothing would hang
+    mesh = _box_mesh()
+    points, normals = surface_samples(mesh, 256, seed=0)
+    fork = multiprocessing.get_context("fork")
+    results = fork.Queue()
+    child = fork.Process(
+        target=_observable_mask_in_a_forked_child, args=(mesh, points, normals, results)
+    )
+    child.start()
+    try:
+        outcome = results.get(timeout=120)
+    finally:
+        child.join(timeout=10)
+        if child.is_alive():
+            child.kill()
+    assert "observable_mask() uses open3d" in outcome
+    assert "vector_kwargs={'context': 'spawn'}" in outcome
+    assert observable_mask(mesh, points, normals, default_observation_viewpoints()).any()
+
+
 def test_points_inside_a_closed_box_are_never_observable():
     mesh = _box_mesh()
     rng = np.random.default_rng(0)

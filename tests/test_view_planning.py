@@ -541,6 +541,38 @@ def test_pickles_and_vectorises():
     np.testing.assert_array_equal(steps["sync"][1], steps["async"][1])
 
 
+def test_a_forked_worker_refuses_reconstruct_instead_of_hanging(monkeypatch):
+    """open3d's OpenMP threads do not survive a fork: ``reconstruct()`` in the worker of an
+    async vector env forked after the parent had imported open3d (which making the vector
+    env does) waited forever. It now raises, naming spawn; a spawned worker reconstructs."""
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)  # with it at 1 nothing would hang
+    kwargs = {**FAST, "depth_backend": "raycast"}
+    results = {}
+    for context in ("fork", "spawn"):
+        envs = gym.make_vec(
+            ENV_ID,
+            num_envs=1,
+            vectorization_mode="async",
+            vector_kwargs={"context": context},
+            **kwargs,
+        )
+        try:
+            envs.reset(seed=0)
+            envs.call_async("reconstruct")
+            try:
+                results[context] = envs.call_wait(timeout=120)[0]
+            except RuntimeError as error:
+                results[context] = error
+        finally:
+            envs.close(terminate=True)
+    assert isinstance(results["fork"], RuntimeError), results["fork"]
+    message = str(results["fork"])
+    assert "reconstruct() uses open3d" in message and "forked" in message
+    assert "vector_kwargs={'context': 'spawn'}" in message
+    reconstruction, metrics = results["spawn"]
+    assert len(reconstruction.cloud.points) > 0 and 0.0 < metrics["fscore"] <= 1.0
+
+
 def test_a_deep_copy_scans_on_alone_and_shares_the_process_caches():
     env = ViewPlanningEnv(**FAST)
     env.reset(seed=4)

@@ -41,6 +41,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
+from liuxing_envs.open3d_fork import check_open3d_not_forked
 from liuxing_envs.perception.pointcloud import as_points
 from liuxing_envs.validation import require_int, require_number
 
@@ -408,6 +409,7 @@ def reconstruct(
     require_number("density_quantile", density_quantile, 0.0, 1.0)
     if density_quantile == 1.0:
         raise ValueError("density_quantile must be below 1 (1 would remove every vertex)")
+    check_open3d_not_forked("reconstruct()")
     if crop_margin is not None:
         require_number("crop_margin", crop_margin, 0.0, math.inf)
     require_int("min_mesh_points", min_mesh_points, 0, _MAX_COUNT)

@@ -34,6 +34,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull
 
 from liuxing_envs.disk_cache import cache_key, load_array, store_array
+from liuxing_envs.open3d_fork import check_open3d_not_forked
 
 __all__ = [
     "DEFAULT_OBSERVATION_AZIMUTH_COUNT",
@@ -1250,6 +1251,7 @@ def observable_mask(
         )
     if len(eyes) == 0 or not np.isfinite(eyes).all():
         raise ValueError("viewpoints must be a non-empty finite (K, 3) array")
+    check_open3d_not_forked("observable_mask()")
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor(mesh.vertices.astype(np.float32)),
