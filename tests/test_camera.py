@@ -37,6 +37,7 @@ from liuxing_envs.sim.scene import (
     load_scene_spec,
     reset_to_home,
 )
+from tests.forking import outcome_in_forked_child
 
 # The test box: 0.10 x 0.06 x 0.08 m, yawed 30 deg, resting on the table in front of the arm.
 BOX_HALF = np.array([0.05, 0.03, 0.04])
@@ -814,23 +815,10 @@ def test_a_process_forked_after_an_opengl_context_refuses_gl_instead_of_hanging(
     """A child forked from a process that had made an OpenGL context waited forever for its
     own (an async vector env made after a render): it now refuses gl, naming spawn, and auto
     falls back to ray casting."""
-    import multiprocessing
-
     data = _data_at(box_model)
     inherited = DepthCamera(box_model, backend="gl")  # made before the fork, used after it
     inherited.render(data)
-    fork = multiprocessing.get_context("fork")
-    results = fork.Queue()
-    child = fork.Process(
-        target=_make_cameras_in_a_forked_child, args=(box_model, inherited, data, results)
-    )
-    child.start()
-    try:
-        outcome = results.get(timeout=120)
-    finally:
-        child.join(timeout=10)
-        if child.is_alive():
-            child.kill()
+    outcome = outcome_in_forked_child(_make_cameras_in_a_forked_child, box_model, inherited, data)
     assert "error" not in outcome, outcome["error"]
     for attempt in ("gl", "inherited"):
         assert "forked from one that had made an OpenGL context" in outcome[attempt]

@@ -26,6 +26,7 @@ from liuxing_envs.sim.objects import (
     observation_viewpoints,
     surface_samples,
 )
+from tests.forking import outcome_in_forked_child
 
 MULTI_PART = (
     "mug", "table", "chair", "stacked_blocks", "t_pipe", "step_pyramid", "ring_stand", "stool",
@@ -521,23 +522,10 @@ def test_a_forked_child_refuses_the_observable_surface_instead_of_hanging(monkey
     """The observable-surface precomputation (an object not yet cached, in a worker forked
     after open3d was imported) waited forever in open3d's ray casting; it now raises,
     naming spawn. The parent still computes it."""
-    import multiprocessing
-
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)  # with it at 1 nothing would hang
     mesh = _box_mesh()
     points, normals = surface_samples(mesh, 256, seed=0)
-    fork = multiprocessing.get_context("fork")
-    results = fork.Queue()
-    child = fork.Process(
-        target=_observable_mask_in_a_forked_child, args=(mesh, points, normals, results)
-    )
-    child.start()
-    try:
-        outcome = results.get(timeout=120)
-    finally:
-        child.join(timeout=10)
-        if child.is_alive():
-            child.kill()
+    outcome = outcome_in_forked_child(_observable_mask_in_a_forked_child, mesh, points, normals)
     assert "observable_mask() uses open3d" in outcome
     assert "vector_kwargs={'context': 'spawn'}" in outcome
     assert observable_mask(mesh, points, normals, default_observation_viewpoints()).any()
