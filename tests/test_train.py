@@ -1409,3 +1409,21 @@ def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
     # normaliser grasps none; the previous shipped policies 16 and 9); the margin allows for
     # other machines' floating point.
     assert successes >= 13
+
+
+def test_the_readme_runs_the_shipped_grasp_policy_in_its_own_env_kwargs(monkeypatch):
+    """The README's snippet for using a shipped policy in one's own code: it must make the
+    env the policy was tuned in (servo damping 0.7), not gym.make's defaults."""
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    section = readme.split("### A shipped policy in your own code", 1)[1]
+    snippet = section.split("```python\n", 1)[1].split("```", 1)[0]
+    monkeypatch.chdir(REPO)
+    namespace: dict = {}
+    exec(compile(snippet, "README.md", "exec"), namespace)  # noqa: S102 (our own docs)
+    env = namespace["env"]
+    try:
+        assert env.spec.id == "InstrumentGrasp-v0"
+        assert env.unwrapped.servo_damping_ratio == 0.7
+        assert env.action_space.contains(namespace["action"])
+    finally:
+        env.close()

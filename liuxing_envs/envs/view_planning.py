@@ -319,6 +319,9 @@ class ViewPlanningEnv(gym.Env):
     (ground truth, stand-in scenes' models, coverage grids): +93 MiB and 0.23 s a copy of an
     env with ray-cast depth after a step, against +306 MiB and 0.55 s before and +74 MiB and
     0.22 s for a new env; with OpenGL depth the copy's first image adds its own context.
+    ``reconstruct()`` in a worker forked after open3d was imported (an async vector env's
+    default) raises, naming spawn, where it waited forever (2026-11-27,
+    :mod:`liuxing_envs.open3d_fork`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
