@@ -7,6 +7,8 @@ Importing the package registers every id in :data:`ENV_IDS` with Gymnasium, so
 
 import gymnasium as gym
 
+import liuxing_envs.open3d_fork  # noqa: F401 (tracks forks for the open3d calls that hang)
+
 __version__ = "0.1.0"
 
 # Kept import-free here: = envs.view_planning.DEFAULT_VIEW_BUDGET and

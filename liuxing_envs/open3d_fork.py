@@ -19,14 +19,19 @@ import os
 import sys
 
 _forked_after_open3d = False
+#: OpenMP reads the variable once, when open3d loads it: read at this module's import (the
+#: package's), not at the fork, so setting it later is not taken for a fix it is not.
+_single_openmp_thread = os.environ.get("OMP_NUM_THREADS") == "1"
 
 
 def _after_fork_in_child() -> None:
     global _forked_after_open3d
-    if "open3d" in sys.modules and os.environ.get("OMP_NUM_THREADS") != "1":
+    if "open3d" in sys.modules and not _single_openmp_thread:
         _forked_after_open3d = True
 
 
+# Registered when the package is imported, so that it sees forks made before any module
+# here imports open3d (the "embree" camera imports it late, user code on its own).
 if hasattr(os, "register_at_fork"):  # not on Windows, which cannot fork
     os.register_at_fork(after_in_child=_after_fork_in_child)
 

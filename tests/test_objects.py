@@ -7,6 +7,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
+from liuxing_envs import open3d_fork
 from liuxing_envs.sim.camera import CameraIntrinsics
 from liuxing_envs.sim.objects import (
     DEFAULT_OBSERVATION_ELEVATIONS_DEG,
@@ -514,15 +515,16 @@ def _observable_mask_in_a_forked_child(mesh, points, normals, results) -> None:
     try:
         observable_mask(mesh, points, normals, default_observation_viewpoints())
         results.put("returned")
-    except RuntimeError as error:
-        results.put(str(error))
+    except Exception as error:  # reported at once, rather than as the parent's timeout
+        results.put(repr(error))
 
 
 def test_a_forked_child_refuses_the_observable_surface_instead_of_hanging(monkeypatch):
     """The observable-surface precomputation (an object not yet cached, in a worker forked
     after open3d was imported) waited forever in open3d's ray casting; it now raises,
     naming spawn. The parent still computes it."""
-    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)  # with it at 1 nothing would hang
+    # As when OMP_NUM_THREADS was not 1 at import (with it at 1 nothing would hang).
+    monkeypatch.setattr(open3d_fork, "_single_openmp_thread", False)
     mesh = _box_mesh()
     points, normals = surface_samples(mesh, 256, seed=0)
     outcome = outcome_in_forked_child(_observable_mask_in_a_forked_child, mesh, points, normals)

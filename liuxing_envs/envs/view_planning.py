@@ -502,7 +502,8 @@ class ViewPlanningEnv(gym.Env):
                 f"workspace {WORKSPACE_LOWER[:2]}-{WORKSPACE_UPPER[:2]}; got {object_region!r}"
             )
         # Ground truth of every variant up front: resets stay cheap, and worker processes
-        # forked from this one never call open3d (its thread pool deadlocks after a fork).
+        # forked from this one never reach the open3d calls that wait forever after a fork
+        # (liuxing_envs.open3d_fork); reconstruct() does, and is refused there.
         self._ground_truth = {}
         radii, elevations_deg = self._observation_views
         for mesh in meshes:

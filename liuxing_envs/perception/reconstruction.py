@@ -409,12 +409,12 @@ def reconstruct(
     require_number("density_quantile", density_quantile, 0.0, 1.0)
     if density_quantile == 1.0:
         raise ValueError("density_quantile must be below 1 (1 would remove every vertex)")
-    check_open3d_not_forked("reconstruct()")
     if crop_margin is not None:
         require_number("crop_margin", crop_margin, 0.0, math.inf)
     require_int("min_mesh_points", min_mesh_points, 0, _MAX_COUNT)
     if support_distance is not None:
         require_number("support_distance", support_distance, 0.0, math.inf)
+    check_open3d_not_forked("reconstruct()")
     voxel_size = float(voxel_size)
     if camera_locations is not None:
         camera_locations = np.asarray(camera_locations, dtype=np.float64)

@@ -1251,13 +1251,14 @@ def observable_mask(
         )
     if len(eyes) == 0 or not np.isfinite(eyes).all():
         raise ValueError("viewpoints must be a non-empty finite (K, 3) array")
-    check_open3d_not_forked("observable_mask()")
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor(mesh.vertices.astype(np.float32)),
         o3d.core.Tensor(mesh.faces.astype(np.uint32)),
     )
     if table:
+        # A scene of one mesh works in a forked child; adding a second waits forever there.
+        check_open3d_not_forked("observable_mask()")
         table_vertices, table_faces = _table_box(table_half_size, table_thickness)
         scene.add_triangles(
             o3d.core.Tensor(table_vertices.astype(np.float32)),
