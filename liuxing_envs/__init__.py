@@ -7,7 +7,7 @@ Importing the package registers every id in :data:`ENV_IDS` with Gymnasium, so
 
 import gymnasium as gym
 
-import liuxing_envs.open3d_fork  # noqa: F401 (tracks forks for the open3d calls that hang)
+import liuxing_envs.forking  # noqa: F401 (tracks forks for the calls that would hang)
 
 __version__ = "0.1.0"
 

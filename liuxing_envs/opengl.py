@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 
+from liuxing_envs.forking import check_opengl_not_forked, note_opengl_context
+
 #: The command-line tools' platform when MUJOCO_GL is unset: headless, as on a server or CI.
 DEFAULT_MUJOCO_GL = "egl"
 #: What each Linux value of MUJOCO_GL needs, for the error message.
@@ -66,40 +68,11 @@ def require_opengl(name: str, value, instead: str) -> None:
         )
 
 
-#: Whether this process has tried to make an OpenGL context, and whether it was forked from
-#: one that had: the child inherits the driver's threads and locks half-copied, and its first
-#: context or render then waits forever (no error, no timeout).
-_made_context = False
-_forked_after_context = False
-
-
-def _after_fork_in_child() -> None:
-    global _forked_after_context
-    _forked_after_context = True
-
-
-def check_not_forked() -> None:
-    """RuntimeError naming the fix in a process forked from one that had made an OpenGL
-    context, where making a context or rendering with an inherited one would hang."""
-    if _forked_after_context:
-        raise RuntimeError(
-            "this process was forked from one that had made an OpenGL context, and OpenGL "
-            "hangs in such a child: start worker processes with spawn (gym.make_vec(..., "
-            "vectorization_mode='async', vector_kwargs={'context': 'spawn'}); SB3's "
-            "SubprocVecEnv(..., start_method='spawn')), or make the envs before anything "
-            "renders (depth_backend='raycast' needs no OpenGL)"
-        )
-
-
 def new_renderer(model, height: int, width: int):
-    """A :class:`mujoco.Renderer` of ``model``, refused (:func:`check_not_forked`) where it
-    would hang."""
-    global _made_context
-    check_not_forked()
+    """A :class:`mujoco.Renderer` of ``model``, refused where it would hang (see
+    :mod:`liuxing_envs.forking`)."""
+    check_opengl_not_forked()
     import mujoco
 
-    # Marked before the attempt: one that fails part-way has already set up the driver.
-    if not _made_context and hasattr(os, "register_at_fork"):  # not on Windows
-        _made_context = True
-        os.register_at_fork(after_in_child=_after_fork_in_child)
+    note_opengl_context()
     return mujoco.Renderer(model, height=height, width=width)

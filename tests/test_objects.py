@@ -7,7 +7,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from liuxing_envs import open3d_fork
+from liuxing_envs import forking
 from liuxing_envs.sim.camera import CameraIntrinsics
 from liuxing_envs.sim.objects import (
     DEFAULT_OBSERVATION_ELEVATIONS_DEG,
@@ -524,7 +524,7 @@ def test_a_forked_child_refuses_the_observable_surface_instead_of_hanging(monkey
     after open3d was imported) waited forever in open3d's ray casting; it now raises,
     naming spawn. The parent still computes it."""
     # As when OMP_NUM_THREADS was not 1 at import (with it at 1 nothing would hang).
-    monkeypatch.setattr(open3d_fork, "_single_openmp_thread", False)
+    monkeypatch.setattr(forking, "_single_openmp_thread", False)
     mesh = _box_mesh()
     points, normals = surface_samples(mesh, 256, seed=0)
     outcome = outcome_in_forked_child(_observable_mask_in_a_forked_child, mesh, points, normals)

@@ -14,7 +14,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
-from liuxing_envs import open3d_fork
+from liuxing_envs import forking
 from liuxing_envs.envs.view_planning import (
     DEFAULT_DISCRETE_RADIUS,
     DEFAULT_VIEW_BUDGET,
@@ -547,7 +547,7 @@ def test_a_forked_worker_refuses_reconstruct_instead_of_hanging(monkeypatch):
     async vector env forked after the parent had imported open3d (which making the vector
     env does) waited forever. It now raises, naming spawn; a spawned worker reconstructs."""
     # As when OMP_NUM_THREADS was not 1 at import (with it at 1 nothing would hang).
-    monkeypatch.setattr(open3d_fork, "_single_openmp_thread", False)
+    monkeypatch.setattr(forking, "_single_openmp_thread", False)
     kwargs = {**FAST, "depth_backend": "raycast"}
     results = {}
     for context in ("fork", "spawn"):

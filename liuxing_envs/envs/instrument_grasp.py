@@ -10,7 +10,8 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.opengl import check_not_forked, new_renderer, require_opengl
+from liuxing_envs.forking import check_opengl_not_forked
+from liuxing_envs.opengl import new_renderer, require_opengl
 from liuxing_envs.sim.arm import Arm
 from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
 from liuxing_envs.sim.gripper import (
@@ -716,7 +717,7 @@ class InstrumentGraspEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         world = self.world
-        check_not_forked()  # a renderer made before a fork hangs in the child
+        check_opengl_not_forked()  # a renderer made before a fork hangs in the child
         if self._renderer is None:
             self._renderer = new_renderer(world.model, 480, 640)
         # Pads shade from white to red with their force: the force read-out.
@@ -1169,7 +1170,7 @@ class _World:
         return self._camera
 
     def rgb(self, intrinsics: CameraIntrinsics) -> np.ndarray:
-        check_not_forked()  # a renderer made before a fork hangs in the child
+        check_opengl_not_forked()  # a renderer made before a fork hangs in the child
         if self._rgb is None:
             self._rgb = new_renderer(self.model, intrinsics.height, intrinsics.width)
             self._rgb.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0  # 20 ms -> 1-2 ms

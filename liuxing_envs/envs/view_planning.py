@@ -16,7 +16,8 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.opengl import check_not_forked, new_renderer, require_opengl
+from liuxing_envs.forking import check_opengl_not_forked
+from liuxing_envs.opengl import new_renderer, require_opengl
 from liuxing_envs.perception.coverage import CoverageTracker
 from liuxing_envs.perception.free_space import FreeSpaceGrid
 from liuxing_envs.perception.fusion import VoxelMap
@@ -321,7 +322,7 @@ class ViewPlanningEnv(gym.Env):
     0.22 s for a new env; with OpenGL depth the copy's first image adds its own context.
     ``reconstruct()`` in a worker forked after open3d was imported (an async vector env's
     default) raises, naming spawn, where it waited forever (2026-11-27,
-    :mod:`liuxing_envs.open3d_fork`).
+    :mod:`liuxing_envs.forking`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 4}
@@ -503,7 +504,7 @@ class ViewPlanningEnv(gym.Env):
             )
         # Ground truth of every variant up front: resets stay cheap, and worker processes
         # forked from this one never reach the open3d calls that wait forever after a fork
-        # (liuxing_envs.open3d_fork); reconstruct() does, and is refused there.
+        # (liuxing_envs.forking); reconstruct() does, and is refused there.
         self._ground_truth = {}
         radii, elevations_deg = self._observation_views
         for mesh in meshes:
@@ -698,7 +699,7 @@ class ViewPlanningEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        check_not_forked()  # a renderer made before a fork hangs in the child
+        check_opengl_not_forked()  # a renderer made before a fork hangs in the child
         if self._renderer is None:
             self._renderer = new_renderer(self.model, *RENDER_SIZE)
         self._renderer.update_scene(self.data, camera=OVERVIEW_CAMERA)

@@ -41,7 +41,7 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
 
-from liuxing_envs.open3d_fork import check_open3d_not_forked
+from liuxing_envs.forking import check_open3d_not_forked
 from liuxing_envs.perception.pointcloud import as_points
 from liuxing_envs.validation import require_int, require_number
 

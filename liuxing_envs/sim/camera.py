@@ -29,7 +29,8 @@ from typing import NamedTuple, Protocol
 import mujoco
 import numpy as np
 
-from liuxing_envs.opengl import check_not_forked, new_renderer
+from liuxing_envs.forking import check_opengl_not_forked
+from liuxing_envs.opengl import new_renderer
 from liuxing_envs.perception.pointcloud import (
     camera_rays,
     check_depth,
@@ -545,7 +546,7 @@ class _GLBackend:
 
     def render(self, data: mujoco.MjData) -> np.ndarray:
         assert self._renderer is not None
-        check_not_forked()  # a renderer made before a fork hangs in the child
+        check_opengl_not_forked()  # a renderer made before a fork hangs in the child
         self._renderer.update_scene(data, camera=self._camera, scene_option=self._option)
         return self._renderer.render()
 

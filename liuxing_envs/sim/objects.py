@@ -34,7 +34,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull
 
 from liuxing_envs.disk_cache import cache_key, load_array, store_array
-from liuxing_envs.open3d_fork import check_open3d_not_forked
+from liuxing_envs.forking import check_open3d_not_forked
 
 __all__ = [
     "DEFAULT_OBSERVATION_AZIMUTH_COUNT",
