@@ -20,7 +20,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks import peers, physics, scaling, throughput, time_split, training  # noqa: E402
-from benchmarks.isolated import describe_cores, machine  # noqa: E402
+from benchmarks.isolated import describe_cores, machine, spread  # noqa: E402
 from benchmarks.report_files import check_writable, report_paths  # noqa: E402
 from benchmarks.throughput import GRASP, GRASP_STATE, VIEW_DEFAULT, VIEW_PLANNING, Config  # noqa: E402
 
@@ -236,6 +236,7 @@ def run(
             # Rounds of every vector env in turn, so that a machine whose speed drifts over
             # minutes slows each of them alike; speed-ups are taken within each round.
             rates: dict[tuple[str, int], list[float]] = {key: [] for key in plan}
+            ceilings: list[dict[str, float]] = []  # the single env's, per round
             for round_ in range(repeats):
                 for kind, count in plan:
                     _progress(
@@ -243,15 +244,19 @@ def run(
                     )
                     measured = scaling.measure(config, kind, count, max(20, int(steps * scale)), 1)
                     rates[(kind, count)].append(measured["median"])
+                    ceilings += [measured["ceilings"]] if kind == "single" else []
             for kind, count in plan:
-                results["scaling"].append(
-                    {
-                        "env_id": config.env_id,
-                        "kind": kind,
-                        "workers": count,
-                        **scaling.summarize(rates[(kind, count)], rates[("single", 1)]),
+                row = {
+                    "env_id": config.env_id,
+                    "kind": kind,
+                    "workers": count,
+                    **scaling.summarize(rates[(kind, count)], rates[("single", 1)]),
+                }
+                if kind == "single":
+                    row["ceilings"] = {
+                        n: spread([c[n] for c in ceilings])["median"] for n in ceilings[0]
                     }
-                )
+                results["scaling"].append(row)
             on_progress(results)
     finished("scaling")
     if "training" in sections:
@@ -277,6 +282,15 @@ def _keep(earlier: dict, sections: list[str], stamp: dict) -> dict:
         results.pop(section, None)
         results["remeasured"][section] = stamp
     return results
+
+
+def _ceiling(row: dict, single: dict, machine_: dict) -> float | None:
+    """The lockstep ceiling of a vector env row (see ``benchmarks/scaling.py``): None for the
+    single env, for more workers than usable cores, and in reports before it was measured."""
+    usable = machine_.get("usable_cores", machine_["cores"])
+    if row["kind"] == "single" or row["workers"] > usable:
+        return None
+    return (single.get("ceilings") or {}).get(str(row["workers"]))
 
 
 def _speedup(row: dict, single: dict) -> float:
@@ -355,11 +369,12 @@ def targets(results: dict) -> list[tuple]:
         two = _find(scaled, env_id=env_id, kind="gymnasium-async", workers=2)
         if single and two:
             speedup = _speedup(two, single)
+            ceiling = _ceiling(two, single, results["machine"])
             out.append(
                 (
                     f"{env_id}: async vector env, 2 workers on {cores}: "
                     f">= {ASYNC_TWO_WORKER_SPEEDUP}x one env",
-                    f"{speedup:.2f}x",
+                    f"{speedup:.2f}x" + (f" (lockstep ceiling {ceiling:.2f}x)" if ceiling else ""),
                     speedup >= ASYNC_TWO_WORKER_SPEEDUP,
                 )
             )
@@ -515,12 +530,17 @@ def report(results: dict, command: str) -> str:
             "## Vectorised scaling",
             "",
             "Total env steps/s over all workers; speed-up against one env stepped in-process"
-            " (measured in rounds, each vector env in turn; the median of the rounds' ratios).",
+            " (measured in rounds, each vector env in turn; the median of the rounds' ratios)."
+            " Both vector envs step their workers in lockstep, each call waiting for the slowest"
+            " worker; the lockstep ceiling is the most that allows with a free core per worker"
+            " and no cost of communication, from the single env's own step times (the median"
+            " over rounds; see `benchmarks/scaling.py`).",
             "",
         ]
         rows = []
         for r in results["scaling"]:
             single = _find(results["scaling"], env_id=r["env_id"], kind="single")
+            ceiling = _ceiling(r, single, m)
             rows.append(
                 (
                     r["env_id"],
@@ -530,11 +550,11 @@ def report(results: dict, command: str) -> str:
                     f"{r['min']:.0f}",
                     f"{r['max']:.0f}",
                     f"{_speedup(r, single):.2f}x",
+                    f"{ceiling:.2f}x" if ceiling else "-",
                 )
             )
-        lines += _table(
-            ("env", "vector env", "workers", "steps/s median", "min", "max", "speed-up"), rows
-        )
+        columns = ("env", "vector env", "workers", "steps/s median", "min", "max", "speed-up")
+        lines += _table((*columns, "lockstep ceiling"), rows)
     if "training" in results:
         lines += [f"## Training throughput (train.py, {describe_cores(m)})", ""]
         lines += _table(

@@ -13,6 +13,15 @@ than workers, the workers share the cores: the speed-up then measures overhead a
 parallelism. ``python -m benchmarks`` measures every vector env once per round, for several
 rounds, and takes each speed-up within a round: on a machine whose speed drifts over
 minutes, a ratio of two measurements made minutes apart would measure the drift.
+
+A vector env of this kind steps its workers in lockstep: each call waits for the slowest
+worker. :func:`lockstep_ceilings` bounds what that alone allows, from one env's own step
+times: with ``n`` workers on ``n`` free cores and no cost of communication at all, the
+speed-up is at most ``n * mean step time / mean time of the slowest of n steps``. Workers in
+lockstep start their episodes together, so where every episode has the same length (a
+ViewPlanning-v0 view budget) they stay in phase and the slowest is taken among steps of the
+same phase (the dearer first step after a reset falls on every worker at once); otherwise
+among all steps.
 """
 
 from __future__ import annotations
@@ -26,7 +35,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from benchmarks.isolated import random_action_throughput, run_in_fresh_process, spread  # noqa: E402
+from benchmarks.isolated import (  # noqa: E402
+    random_action_throughput,
+    random_steps,
+    run_in_fresh_process,
+    spread,
+)
 from benchmarks.throughput import Config, make_env  # noqa: E402
 
 WORKERS = (1, 2, 4)
@@ -51,10 +65,56 @@ def _vector_env(config: Config, kind: str, workers: int):
     return SubprocVecEnv([lambda: make_env(config)] * workers)
 
 
+def _mean_slowest(times: np.ndarray, n: int) -> float:
+    """Expected maximum of ``n`` independent draws from the empirical distribution
+    ``times``: exact, from its order statistics, so the same times give the same figure."""
+    ordered = np.sort(times)
+    share = np.arange(ordered.size + 1) / ordered.size
+    return float(ordered @ np.diff(share**n))
+
+
+def lockstep_ceilings(config: Config, steps: int, workers=WORKERS) -> dict[str, float]:
+    """Per worker count (a string key, as JSON keeps it): the speed-up ceiling of a lockstep
+    vector env (see the module doc), from ``steps`` seeded random steps of one env."""
+    env = make_env(config)
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    random_steps(env, steps // 4)  # warm-up: first visits fill per-process caches
+    env.reset()
+    times, phases, lengths, phase = [], [], [], 0
+    for _ in range(steps):
+        start = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        ended = terminated or truncated
+        if ended:  # the reset belongs to the call, as in the vector env's same-step autoreset
+            env.reset()
+        times.append(time.perf_counter() - start)
+        phases.append(phase)
+        phase = 0 if ended else phase + 1
+        if ended:
+            lengths.append(phases[-1] + 1)
+    env.close()
+    times, phases = np.array(times), np.array(phases)
+    in_phase = len(set(lengths)) == 1  # every episode ended as long
+    ceilings = {}
+    for n in workers:
+        if in_phase:  # each phase weighted by its steps (the last episode may be cut short)
+            weighted = (
+                np.count_nonzero(phases == p) * _mean_slowest(times[phases == p], n)
+                for p in range(lengths[0])
+            )
+            slowest = sum(weighted) / times.size
+        else:
+            slowest = _mean_slowest(times, n)
+        ceilings[str(n)] = n * float(times.mean()) / slowest
+    return ceilings
+
+
 def vector_throughput(config: Config, kind: str, workers: int, steps: int, repeats: int) -> dict:
     """Total env steps/s (``steps`` per worker per timed run)."""
     if kind == "single":
-        return random_action_throughput(make_env(config), steps, repeats, warmup=steps // 4)
+        measured = random_action_throughput(make_env(config), steps, repeats, warmup=steps // 4)
+        return {**measured, "ceilings": lockstep_ceilings(config, 4 * steps * repeats)}
     env = _vector_env(config, kind, workers)
     sb3 = kind == "sb3-subproc"
     space = env.action_space

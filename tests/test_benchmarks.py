@@ -209,6 +209,45 @@ def test_scaling_speedups_are_taken_within_each_round():
     assert (summary["median"], summary["min"], summary["max"]) == (200.0, 150.0, 400.0)
 
 
+def test_mean_slowest_of_n_is_the_mean_maximum_over_every_draw():
+    import itertools
+
+    times = np.array([3.0, 1.0, 4.0, 1.5, 9.0, 2.6])
+    for n in (1, 2, 3):
+        draws = list(itertools.product(times, repeat=n))  # with replacement: independent draws
+        expected = np.mean([max(draw) for draw in draws])
+        assert scaling._mean_slowest(times, n) == pytest.approx(expected, rel=1e-12)
+
+
+def test_lockstep_ceilings_of_view_planning_lie_between_one_and_the_worker_count():
+    # 4-view episodes stay in phase: the slowest of n is taken per step of the episode.
+    ceilings = scaling.lockstep_ceilings(VIEW_DEFAULT, 48, workers=(1, 2, 4))
+    assert ceilings["1"] == pytest.approx(1.0, rel=1e-12)
+    assert 1.0 < ceilings["2"] < 2.0 and ceilings["2"] < ceilings["4"] < 4.0
+
+
+def test_scaling_report_shows_the_lockstep_ceiling_where_each_worker_has_a_core():
+    rate = {"median": 300.0, "min": 290.0, "max": 310.0, "speedup": 1.0}
+    single = {"env_id": "ViewPlanning-v0", "kind": "single", "workers": 1, **rate}
+    rows = [
+        {**single, "ceilings": {"1": 1.0, "2": 1.71, "4": 2.9}},
+        *(
+            {**rate, "env_id": "ViewPlanning-v0", "kind": "gymnasium-async", "workers": n}
+            for n in (2, 4)
+        ),
+    ]
+    results = {"machine": dict(MACHINE), "quick": False, "scaling": rows}  # 2 cores
+    text = bench_cli.report(results, "python -m benchmarks")
+    assert "| ViewPlanning-v0 | gymnasium-async | 2 | 300 | 290 | 310 | 1.00x | 1.71x |" in text
+    assert "| ViewPlanning-v0 | gymnasium-async | 4 | 300 | 290 | 310 | 1.00x | - |" in text
+    (target,) = bench_cli.targets(results)
+    assert target[1] == "1.00x (lockstep ceiling 1.71x)" and not target[2]
+    # A report made before the ceiling was measured still renders.
+    del rows[0]["ceilings"]
+    text = bench_cli.report(results, "python -m benchmarks")
+    assert "| 2 | 300 | 290 | 310 | 1.00x | - |" in text
+
+
 class Measured(Exception):
     """Raised in place of the measurements: the command line got past every check."""
 
