@@ -237,6 +237,7 @@ def run(
             # minutes slows each of them alike; speed-ups are taken within each round.
             rates: dict[tuple[str, int], list[float]] = {key: [] for key in plan}
             ceilings: list[dict[str, float]] = []  # the single env's, per round
+            costs: list[dict[str, dict[str, float]]] = []
             for round_ in range(repeats):
                 for kind, count in plan:
                     _progress(
@@ -244,7 +245,9 @@ def run(
                     )
                     measured = scaling.measure(config, kind, count, max(20, int(steps * scale)), 1)
                     rates[(kind, count)].append(measured["median"])
-                    ceilings += [measured["ceilings"]] if kind == "single" else []
+                    if kind == "single":
+                        ceilings.append(measured["ceilings"])
+                        costs.append(measured["vector_cost_ms"])
             for kind, count in plan:
                 row = {
                     "env_id": config.env_id,
@@ -255,6 +258,13 @@ def run(
                 if kind == "single":
                     row["ceilings"] = {
                         n: spread([c[n] for c in ceilings])["median"] for n in ceilings[0]
+                    }
+                    row["vector_cost_ms"] = {
+                        vector: {
+                            n: spread([c[vector][n] for c in costs])["median"]
+                            for n in costs[0][vector]
+                        }
+                        for vector in costs[0]
                     }
                 results["scaling"].append(row)
             on_progress(results)
@@ -555,6 +565,23 @@ def report(results: dict, command: str) -> str:
             )
         columns = ("env", "vector env", "workers", "steps/s median", "min", "max", "speed-up")
         lines += _table((*columns, "lockstep ceiling"), rows)
+        costs = [
+            (r["env_id"], vector, n, f"{ms:.3f}", f"{ms * r['median'] / 1e3:.2f}")
+            for r in results["scaling"]
+            if r["kind"] == "single"
+            for vector, by_workers in (r.get("vector_cost_ms") or {}).items()
+            for n, ms in by_workers.items()
+        ]
+        if costs:
+            lines += [
+                "The vector envs' own cost: milliseconds per call of `step` on no-op twins of"
+                " each env (its spaces, observation and info, and no work; random actions"
+                " included), and that cost in env steps of the single env above.",
+                "",
+            ]
+            lines += _table(
+                ("env", "vector env", "workers", "ms per call", "in single env steps"), costs
+            )
     if "training" in results:
         lines += [f"## Training throughput (train.py, {describe_cores(m)})", ""]
         lines += _table(

@@ -21,19 +21,24 @@ speed-up is at most ``n * mean step time / mean time of the slowest of n steps``
 lockstep start their episodes together, so where every episode has the same length (a
 ViewPlanning-v0 view budget) they stay in phase and the slowest is taken among steps of the
 same phase (the dearer first step after a reset falls on every worker at once); otherwise
-among all steps.
+among all steps. The other cost is the vector env's own: :func:`vector_cost_ms` times its
+calls on :class:`NoOpTwin` copies of the env, which have its spaces, observation and info but
+do no work.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import time
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
+from stable_baselines3.common.vec_env import SubprocVecEnv  # noqa: E402
 
 from benchmarks.isolated import (  # noqa: E402
     random_action_throughput,
@@ -49,8 +54,6 @@ KINDS = ("single", "gymnasium-async", "sb3-subproc")
 
 def _vector_env(config: Config, kind: str, workers: int):
     if kind == "gymnasium-async":
-        import gymnasium as gym
-
         import liuxing_envs  # noqa: F401
 
         return gym.make_vec(
@@ -60,8 +63,6 @@ def _vector_env(config: Config, kind: str, workers: int):
             vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
             **config.kwargs,
         )
-    from stable_baselines3.common.vec_env import SubprocVecEnv
-
     return SubprocVecEnv([lambda: make_env(config)] * workers)
 
 
@@ -111,11 +112,22 @@ def lockstep_ceilings(config: Config, steps: int, workers=WORKERS) -> dict[str, 
 
 
 def vector_throughput(config: Config, kind: str, workers: int, steps: int, repeats: int) -> dict:
-    """Total env steps/s (``steps`` per worker per timed run)."""
+    """Total env steps/s (``steps`` per worker per timed run); for the single env, also its
+    lockstep ceilings and the vector envs' own cost (:func:`vector_cost_ms`)."""
     if kind == "single":
         measured = random_action_throughput(make_env(config), steps, repeats, warmup=steps // 4)
-        return {**measured, "ceilings": lockstep_ceilings(config, 4 * steps * repeats)}
-    env = _vector_env(config, kind, workers)
+        return {
+            **measured,
+            "ceilings": lockstep_ceilings(config, 4 * steps * repeats),
+            "vector_cost_ms": vector_cost_ms(config, steps * repeats),
+        }
+    rates = _vector_rates(_vector_env(config, kind, workers), kind, workers, steps, repeats)
+    return spread(rates)
+
+
+def _vector_rates(env, kind: str, workers: int, steps: int, repeats: int) -> list[float]:
+    """Env steps/s of ``repeats`` timed runs of ``steps`` calls of seeded random actions
+    (after ``steps // 4`` untimed); closes ``env``."""
     sb3 = kind == "sb3-subproc"
     space = env.action_space
     space.seed(0)
@@ -135,7 +147,55 @@ def vector_throughput(config: Config, kind: str, workers: int, steps: int, repea
     run(max(1, steps // 4))
     rates = [run(steps) for _ in range(repeats)]
     env.close()
-    return spread(rates)
+    return rates
+
+
+class NoOpTwin(gym.Env):
+    """An env with a real one's spaces that does no work: every step returns the same
+    observation and info (a copy), ending an episode every ``episode_steps``. A vector env
+    of these costs what the vector env itself does per call: processes, pipes, shared
+    memory and merging the infos."""
+
+    def __init__(self, spaces, observation, info: dict, episode_steps: int) -> None:
+        self.observation_space, self.action_space = spaces
+        self._observation, self._info, self._episode_steps = observation, info, episode_steps
+        self._steps = 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self._steps = 0
+        return self._observation, dict(self._info)
+
+    def step(self, action):
+        self._steps += 1
+        ended = self._steps % self._episode_steps == 0
+        return self._observation, 0.0, ended, False, dict(self._info)
+
+
+def vector_cost_ms(config: Config, calls: int, workers=(1, 2)) -> dict[str, dict[str, float]]:
+    """Per vector env kind and worker count: milliseconds per call of ``step`` on
+    :class:`NoOpTwin` copies of ``config``'s env (the calls' random actions included, as in
+    every rate here)."""
+    real = make_env(config)
+    real.action_space.seed(0)
+    real.reset(seed=0)
+    observation, _, _, _, info = real.step(real.action_space.sample())
+    spaces = (real.observation_space, real.action_space)
+    twin = functools.partial(NoOpTwin, spaces, observation, info, real.spec.max_episode_steps)
+    real.close()
+    cost: dict[str, dict[str, float]] = {}
+    for kind in KINDS[1:]:
+        cost[kind] = {}
+        for count in workers:
+            if kind == "gymnasium-async":
+                env = gym.vector.AsyncVectorEnv(
+                    [twin] * count, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+                )
+            else:
+                env = SubprocVecEnv([twin] * count)
+            rates = _vector_rates(env, kind, count, calls, 1)
+            cost[kind][str(count)] = 1e3 * count / rates[0]
+    return cost
 
 
 def summarize(rates: list[float], single_rates: list[float]) -> dict:

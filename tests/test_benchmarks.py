@@ -11,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from gymnasium.spaces import Box
 
 import benchmarks.__main__ as bench_cli
 from benchmarks import scaling, time_split
@@ -226,11 +227,27 @@ def test_lockstep_ceilings_of_view_planning_lie_between_one_and_the_worker_count
     assert 1.0 < ceilings["2"] < 2.0 and ceilings["2"] < ceilings["4"] < 4.0
 
 
+def test_vector_cost_is_measured_on_twins_that_step_like_the_env_without_its_work():
+    twin = scaling.NoOpTwin(
+        (SMALL_BOX, SMALL_BOX), np.zeros(2, np.float32), {"coverage": 0.5}, episode_steps=4
+    )
+    _, info = twin.reset(seed=0)
+    ends = [twin.step(np.zeros(2, np.float32))[2] for _ in range(8)]
+    assert ends == [False, False, False, True] * 2 and info == {"coverage": 0.5}
+    cost = scaling.vector_cost_ms(VIEW_DEFAULT, 30)
+    assert set(cost) == {"gymnasium-async", "sb3-subproc"}
+    assert all(set(by) == {"1", "2"} and min(by.values()) > 0.0 for by in cost.values())
+
+
 def test_scaling_report_shows_the_lockstep_ceiling_where_each_worker_has_a_core():
     rate = {"median": 300.0, "min": 290.0, "max": 310.0, "speedup": 1.0}
     single = {"env_id": "ViewPlanning-v0", "kind": "single", "workers": 1, **rate}
     rows = [
-        {**single, "ceilings": {"1": 1.0, "2": 1.71, "4": 2.9}},
+        {
+            **single,
+            "ceilings": {"1": 1.0, "2": 1.71, "4": 2.9},
+            "vector_cost_ms": {"gymnasium-async": {"1": 0.25, "2": 0.5}},
+        },
         *(
             {**rate, "env_id": "ViewPlanning-v0", "kind": "gymnasium-async", "workers": n}
             for n in (2, 4)
@@ -240,12 +257,17 @@ def test_scaling_report_shows_the_lockstep_ceiling_where_each_worker_has_a_core(
     text = bench_cli.report(results, "python -m benchmarks")
     assert "| ViewPlanning-v0 | gymnasium-async | 2 | 300 | 290 | 310 | 1.00x | 1.71x |" in text
     assert "| ViewPlanning-v0 | gymnasium-async | 4 | 300 | 290 | 310 | 1.00x | - |" in text
+    # The vector env's own cost per call, and in steps of the single env (300 steps/s).
+    assert "| ViewPlanning-v0 | gymnasium-async | 2 | 0.500 | 0.15 |" in text
     (target,) = bench_cli.targets(results)
     assert target[1] == "1.00x (lockstep ceiling 1.71x)" and not target[2]
     # A report made before the ceiling was measured still renders.
     del rows[0]["ceilings"]
     text = bench_cli.report(results, "python -m benchmarks")
     assert "| 2 | 300 | 290 | 310 | 1.00x | - |" in text
+
+
+SMALL_BOX = Box(-1.0, 1.0, (2,), np.float32)
 
 
 class Measured(Exception):
