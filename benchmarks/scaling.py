@@ -38,7 +38,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
-from stable_baselines3.common.vec_env import SubprocVecEnv  # noqa: E402
 
 from benchmarks.isolated import (  # noqa: E402
     random_action_throughput,
@@ -63,7 +62,14 @@ def _vector_env(config: Config, kind: str, workers: int):
             vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
             **config.kwargs,
         )
-    return SubprocVecEnv([lambda: make_env(config)] * workers)
+    return _subproc_vec_env([lambda: make_env(config)] * workers)
+
+
+def _subproc_vec_env(env_fns):
+    # Imported here: stable-baselines3 brings torch, which the other measurements go without.
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    return SubprocVecEnv(env_fns)
 
 
 def _mean_slowest(times: np.ndarray, n: int) -> float:
@@ -192,7 +198,7 @@ def vector_cost_ms(config: Config, calls: int, workers=(1, 2)) -> dict[str, dict
                     [twin] * count, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
                 )
             else:
-                env = SubprocVecEnv([twin] * count)
+                env = _subproc_vec_env([twin] * count)
             rates = _vector_rates(env, kind, count, calls, 1)
             cost[kind][str(count)] = 1e3 * count / rates[0]
     return cost
