@@ -21,9 +21,10 @@ speed-up is at most ``n * mean step time / mean time of the slowest of n steps``
 lockstep start their episodes together, so where every episode has the same length (a
 ViewPlanning-v0 view budget) they stay in phase and the slowest is taken among steps of the
 same phase (the dearer first step after a reset falls on every worker at once); otherwise
-among all steps. The other cost is the vector env's own: :func:`vector_cost_ms` times its
-calls on :class:`NoOpTwin` copies of the env, which have its spaces, observation and info but
-do no work.
+among all steps, as if independent, which makes the figure an estimate rather than a
+bound. The other cost is the vector env's own: :func:`vector_cost_ms` times its calls on
+:class:`NoOpTwin` copies of the env, which have its spaces, observation and info but do no
+work.
 """
 
 from __future__ import annotations
@@ -80,13 +81,21 @@ def _mean_slowest(times: np.ndarray, n: int) -> float:
     return float(ordered @ np.diff(share**n))
 
 
+#: Episodes that must have ended, all as long, before steps are grouped by phase: with
+#: fewer, a phase holds too few steps for its slowest-of-n to be estimated.
+MIN_EPISODES_IN_PHASE = 3
+#: Steps timed for the ceilings per step timed for the rate: order statistics need many.
+CEILING_STEPS_PER_RATE_STEP = 4
+
+
 def lockstep_ceilings(config: Config, steps: int, workers=WORKERS) -> dict[str, float]:
     """Per worker count (a string key, as JSON keeps it): the speed-up ceiling of a lockstep
-    vector env (see the module doc), from ``steps`` seeded random steps of one env."""
+    vector env (see the module doc), from ``steps`` seeded random steps of one env (after
+    ``steps // 4`` untimed, which fill the per-process caches)."""
     env = make_env(config)
     env.action_space.seed(0)
-    env.reset(seed=0)
-    random_steps(env, steps // 4)  # warm-up: first visits fill per-process caches
+    env.reset(seed=0)  # seeds the episode stream; random_steps starts its own episode
+    random_steps(env, steps // 4)
     env.reset()
     times, phases, lengths, phase = [], [], [], 0
     for _ in range(steps):
@@ -101,8 +110,23 @@ def lockstep_ceilings(config: Config, steps: int, workers=WORKERS) -> dict[str, 
         if ended:
             lengths.append(phases[-1] + 1)
     env.close()
-    times, phases = np.array(times), np.array(phases)
-    in_phase = len(set(lengths)) == 1  # every episode ended as long
+    return ceilings_from_times(np.array(times), np.array(phases), lengths, workers)
+
+
+def ceilings_from_times(
+    times: np.ndarray, phases: np.ndarray, lengths: list[int], workers=WORKERS
+) -> dict[str, float]:
+    """:func:`lockstep_ceilings` from the step times, each step's phase (its index in its
+    episode) and the lengths of the episodes that ended. Steps are grouped by phase when at
+    least :data:`MIN_EPISODES_IN_PHASE` episodes ended, all as long, and the one cut short
+    is no longer; otherwise the slowest of n is taken among all steps, as if the workers'
+    steps were independent (an estimate, not a bound: workers that start together stay
+    partly in phase)."""
+    in_phase = (
+        len(lengths) >= MIN_EPISODES_IN_PHASE
+        and len(set(lengths)) == 1
+        and int(phases.max()) < lengths[0]
+    )
     ceilings = {}
     for n in workers:
         if in_phase:  # each phase weighted by its steps (the last episode may be cut short)
@@ -124,7 +148,7 @@ def vector_throughput(config: Config, kind: str, workers: int, steps: int, repea
         measured = random_action_throughput(make_env(config), steps, repeats, warmup=steps // 4)
         return {
             **measured,
-            "ceilings": lockstep_ceilings(config, 4 * steps * repeats),
+            "ceilings": lockstep_ceilings(config, CEILING_STEPS_PER_RATE_STEP * steps * repeats),
             "vector_cost_ms": vector_cost_ms(config, steps * repeats),
         }
     rates = _vector_rates(_vector_env(config, kind, workers), kind, workers, steps, repeats)
@@ -158,9 +182,10 @@ def _vector_rates(env, kind: str, workers: int, steps: int, repeats: int) -> lis
 
 class NoOpTwin(gym.Env):
     """An env with a real one's spaces that does no work: every step returns the same
-    observation and info (a copy), ending an episode every ``episode_steps``. A vector env
-    of these costs what the vector env itself does per call: processes, pipes, shared
-    memory and merging the infos."""
+    observation and a copy of the same info, and terminates an episode every
+    ``episode_steps``. A vector env of these costs what the vector env itself does per
+    call: processes, pipes, shared memory and merging the infos (a little less than with
+    the real env, whose last step of an episode may carry more info)."""
 
     def __init__(self, spaces, observation, info: dict, episode_steps: int) -> None:
         self.observation_space, self.action_space = spaces
@@ -187,7 +212,10 @@ def vector_cost_ms(config: Config, calls: int, workers=(1, 2)) -> dict[str, dict
     real.reset(seed=0)
     observation, _, _, _, info = real.step(real.action_space.sample())
     spaces = (real.observation_space, real.action_space)
-    twin = functools.partial(NoOpTwin, spaces, observation, info, real.spec.max_episode_steps)
+    episode_steps = real.spec.max_episode_steps
+    if not episode_steps:
+        raise ValueError(f"{config.env_id} has no max_episode_steps for its twins' episodes")
+    twin = functools.partial(NoOpTwin, spaces, observation, info, episode_steps)
     real.close()
     cost: dict[str, dict[str, float]] = {}
     for kind in KINDS[1:]:

@@ -13,8 +13,9 @@ timeout) in some calls, measured on Linux:
   backend) do not. With ``OMP_NUM_THREADS=1`` nothing hangs.
 
 It matters because ``gym.make_vec(..., vectorization_mode="async")`` forks its workers by
-default on Linux, after making one env in the parent, which imports open3d (and renders,
-where a render came before). The calls that would hang check first and raise instead.
+default on Linux (Python before 3.14), after making one env in the parent, which imports
+open3d; a parent that has rendered also holds an OpenGL context. The calls that would hang
+check first and raise instead.
 """
 
 from __future__ import annotations
@@ -39,7 +40,8 @@ _forked_after_open3d = False
 
 def _after_fork_in_child() -> None:
     global _forked_after_opengl, _forked_after_open3d
-    _forked_after_opengl = _forked_after_opengl or _made_opengl_context
+    if _made_opengl_context:  # inherited, so a grandchild is refused too
+        _forked_after_opengl = True
     if "open3d" in sys.modules and not _single_openmp_thread:
         _forked_after_open3d = True
 

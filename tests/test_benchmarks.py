@@ -220,6 +220,22 @@ def test_mean_slowest_of_n_is_the_mean_maximum_over_every_draw():
         assert scaling._mean_slowest(times, n) == pytest.approx(expected, rel=1e-12)
 
 
+def test_ceilings_group_steps_by_phase_only_when_enough_episodes_stay_in_phase():
+    # Three 2-step episodes: the first step (with its reset) always 1, the second 3.
+    times, phases = np.array([1.0, 3.0] * 3), np.array([0, 1] * 3)
+    in_phase = scaling.ceilings_from_times(times, phases, [2, 2, 2], workers=(2,))
+    # In phase, both workers' steps cost the same: no worker ever waits.
+    assert in_phase["2"] == pytest.approx(2.0)
+    # Too few episodes, or a last one running past the others, is pooled: independent
+    # draws of 1 or 3 have a larger one of 2.5 on average against a mean of 2.
+    pooled = scaling.ceilings_from_times(times, phases, [2, 2], workers=(2,))
+    assert pooled["2"] == pytest.approx(1.6)
+    longer = scaling.ceilings_from_times(
+        np.r_[times, 1.0, 3.0, 3.0], np.r_[phases, 0, 1, 2], [2, 2, 2], workers=(2,)
+    )
+    assert longer["2"] < 2.0
+
+
 def test_lockstep_ceilings_of_view_planning_lie_between_one_and_the_worker_count():
     # 4-view episodes stay in phase: the slowest of n is taken per step of the episode.
     ceilings = scaling.lockstep_ceilings(VIEW_DEFAULT, 48, workers=(1, 2, 4))

@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from liuxing_envs import forking
 from liuxing_envs.perception import (
     camera_rays,
     crop_points,
@@ -827,6 +828,20 @@ def test_a_process_forked_after_an_opengl_context_refuses_gl_instead_of_hanging(
     # The parent itself still renders with OpenGL.
     assert np.isfinite(inherited.render(data)).any()
     inherited.close()
+
+
+def test_only_a_child_forked_after_a_context_is_refused_opengl(monkeypatch):
+    # The hook runs at every fork since the package was imported: a child forked before
+    # this process made any context may still make its own.
+    monkeypatch.setattr(forking, "_made_opengl_context", False)
+    monkeypatch.setattr(forking, "_forked_after_opengl", False)
+    monkeypatch.setattr(forking, "_forked_after_open3d", False)  # restored, as the others
+    forking._after_fork_in_child()
+    forking.check_opengl_not_forked()  # no error
+    forking.note_opengl_context()
+    forking._after_fork_in_child()
+    with pytest.raises(RuntimeError, match="forked from one that had made an OpenGL context"):
+        forking.check_opengl_not_forked()
 
 
 def test_close_is_idempotent_and_final(box_model):
