@@ -256,16 +256,8 @@ def run(
                     **scaling.summarize(rates[(kind, count)], rates[("single", 1)]),
                 }
                 if kind == "single":
-                    row["ceilings"] = {
-                        n: spread([c[n] for c in ceilings])["median"] for n in ceilings[0]
-                    }
-                    row["vector_cost_ms"] = {
-                        vector: {
-                            n: spread([c[vector][n] for c in costs])["median"]
-                            for n in costs[0][vector]
-                        }
-                        for vector in costs[0]
-                    }
+                    row["ceilings"] = _median_over_rounds(ceilings)
+                    row["vector_cost_ms"] = _median_over_rounds(costs)
                 results["scaling"].append(row)
             on_progress(results)
     finished("scaling")
@@ -282,6 +274,13 @@ def run(
         )
     finished("training")
     return results
+
+
+def _median_over_rounds(rounds: list):
+    """Per leaf of the rounds' (nested) dicts of figures, its median over the rounds."""
+    if isinstance(rounds[0], dict):
+        return {key: _median_over_rounds([r[key] for r in rounds]) for key in rounds[0]}
+    return spread(rounds)["median"]
 
 
 def _keep(earlier: dict, sections: list[str], stamp: dict) -> dict:
