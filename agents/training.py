@@ -9,6 +9,7 @@ periodic evaluation and checkpoints, resume, and finish with a comparison to the
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import inspect
 import json
@@ -574,7 +575,7 @@ class PeriodicEvaluation(_Periodic):
     checkpoints are taken: at the step that passes a multiple, a row and a best model were
     labelled with steps their weights had not learned from (one rollout's), and the last
     update was never scored. A resumed run first makes up an evaluation a stop cut short,
-    which is not recorded."""
+    which is not recorded (a finished run's last one: :func:`_make_up_last_evaluation`)."""
 
     def __init__(self, config: dict, run_dir: Path, every: int) -> None:
         super().__init__(every)
@@ -599,10 +600,8 @@ class PeriodicEvaluation(_Periodic):
     def _on_training_start(self) -> None:
         super()._on_training_start()
         self._after_update = isinstance(self.model, OnPolicyAlgorithm)
-        done = {row["timesteps"] // self.every for row in run_folder.read_evaluations(self.run_dir)}
-        missed = self.model.num_timesteps // self.every
-        if missed and missed not in done:  # a resumed run whose evaluation a stop cut short
-            self.next_at = self.model.num_timesteps
+        if evaluation_missed(self.run_dir, self.every, self.model.num_timesteps):
+            self.next_at = self.model.num_timesteps  # a resumed run's, which a stop cut short
 
     def _on_step(self) -> bool:
         if not self._after_update:
@@ -626,19 +625,13 @@ class PeriodicEvaluation(_Periodic):
             pass  # an evaluation cut short is not recorded; learn() stops at the next step
 
     def evaluate(self) -> dict:
-        policy = SB3Policy(self.model, self.model.get_vec_normalize_env())
-        episodes = run_episodes(
-            self.env, policy, self.seeds, (self.task.metric,), on_episode=_raise_if_requested
+        """Scores the model as it is now (:meth:`score`) and keeps it as the best model if
+        it beats the best so far."""
+        row = self.score(
+            SB3Policy(self.model, self.model.get_vec_normalize_env()),
+            self.model.num_timesteps,  # the callback's own counter lags outside on_step
+            self.clock.seconds(),
         )
-        returns = [episode["return"] for episode in episodes]
-        row = {
-            "timesteps": int(self.model.num_timesteps),  # the callback's lags outside on_step
-            "mean_return": float(np.mean(returns)),
-            "std_return": float(np.std(returns)),
-            "mean_metric": float(np.mean([episode[self.task.metric] for episode in episodes])),
-            "wall_seconds": round(self.clock.seconds(), 1),
-        }
-        run_folder.append_evaluation(self.run_dir, row)
         self.logger.record("eval/mean_reward", row["mean_return"])
         self.logger.record(f"eval/{self.task.metric}", row["mean_metric"])
         if row["mean_return"] > self.best:
@@ -651,6 +644,59 @@ class PeriodicEvaluation(_Periodic):
             setattr(self.model, TRAINED_SECONDS, row["wall_seconds"])  # behind this model
             run_folder.save_atomically(self.model.save, self.run_dir / run_folder.BEST_MODEL)
         return row
+
+    def score(self, policy: SB3Policy, steps: int, seconds: float) -> dict:
+        """Runs the evaluation episodes with ``policy`` (trained for ``steps`` steps in
+        ``seconds``) and appends their row to ``evaluations.csv``; returns the row."""
+        episodes = run_episodes(
+            self.env, policy, self.seeds, (self.task.metric,), on_episode=_raise_if_requested
+        )
+        returns = [episode["return"] for episode in episodes]
+        row = {
+            "timesteps": int(steps),
+            "mean_return": float(np.mean(returns)),
+            "std_return": float(np.std(returns)),
+            "mean_metric": float(np.mean([episode[self.task.metric] for episode in episodes])),
+            "wall_seconds": round(seconds, 1),
+        }
+        run_folder.append_evaluation(self.run_dir, row)
+        return row
+
+
+def evaluation_missed(run_dir: Path, every: int, steps: int) -> bool:
+    """Whether a run at ``steps`` steps that evaluates every ``every`` lacks the evaluation
+    of the last multiple it passed: a stop cut it short, or (PPO's at the end of training,
+    which follows the last update) skipped it."""
+    if not every or steps < every:
+        return False
+    done = {row["timesteps"] // every for row in run_folder.read_evaluations(run_dir)}
+    return steps // every not in done
+
+
+def _make_up_last_evaluation(run_dir: Path, config: dict, steps: int, result: dict) -> None:
+    """The evaluation a stop left out at the end of a run trained for ``steps`` steps,
+    scored on its final model; that model becomes the best one if it beats it, as in
+    training."""
+    seconds = result.get("train_seconds", math.nan)  # none where result.json was lost
+    evaluation = PeriodicEvaluation(config, run_dir, config["eval_freq"])
+    try:
+        row = evaluation.score(load_policy(run_dir, config, best=False), steps, seconds)
+    finally:
+        evaluation.env.close()
+    print(
+        f"evaluation at {row['timesteps']} steps: mean return {row['mean_return']:.3f}, "
+        f"{task_for(config['env_id']).metric} {row['mean_metric']:.3f}"
+    )
+    if row["mean_return"] > evaluation.best:
+        # The normaliser first, as training saves them: a best model is taken with its own.
+        for final, best in (
+            (run_folder.FINAL_NORMALIZER, run_folder.BEST_NORMALIZER),
+            (run_folder.FINAL_MODEL, run_folder.BEST_MODEL),
+        ):
+            if (run_dir / final).is_file():
+                copy = functools.partial(shutil.copyfile, run_dir / final)
+                run_folder.save_atomically(copy, run_dir / best)
+    plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
 
 
 # --- runs ------------------------------------------------------------------------------------
@@ -948,15 +994,21 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
         config["env_id"], config["start_curriculum"]
     )
     if steps >= total:
-        # Stopped during (or trained without) the final comparison its config asks for.
+        # Stopped after its last step, or trained without the final comparison its config
+        # now asks for: what is left is done alone.
         result = _read_result(run_dir, steps)
         trained = (run_dir / run_folder.FINAL_MODEL).is_file()
-        if config["final_episodes"] and trained and "comparison" not in result:
-            print(f"{str(run_dir)!r} finished training; running its final comparison")
+        left = _left_after_training(run_dir, config, steps, result) if trained else []
+        if left:
+            print(f"{str(run_dir)!r} finished training; running {' and '.join(left)}")
             # Recorded as any resume is: its command, and a --final-episodes it changed.
             run_folder.write_config(
                 run_dir, {**config, "n_timesteps": max(config["n_timesteps"], steps)}, resuming=True
             )
+            if LAST_EVALUATION in left:
+                _make_up_last_evaluation(run_dir, config, steps, result)
+            if FINAL_COMPARISON not in left:
+                return result
             return _final_comparison(run_dir, config, result)
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {total} steps; "
@@ -1153,15 +1205,27 @@ def _learn(
                     callback.env.close()
         result = _save_trained(model, config, run_dir, level, clock)
     if interrupts.requested():  # after the last step (its update, or the saving) ended
-        comparison = f" Run the comparison with: python train.py --resume {run_dir}"
-        print(
-            "\ninterrupted after the last step; the trained run is saved."
-            + (comparison if config["final_episodes"] else "")
-        )
+        left = _left_after_training(run_dir, config, result["timesteps"], result)
+        rest = f" Run {' and '.join(left)} with: python train.py --resume {run_dir}" if left else ""
+        print("\ninterrupted after the last step; the trained run is saved." + rest)
         raise KeyboardInterrupt
     if not config["final_episodes"]:
         return result
     return _final_comparison(run_dir, config, result)
+
+
+LAST_EVALUATION, FINAL_COMPARISON = "its last evaluation", "its final comparison"
+
+
+def _left_after_training(run_dir: Path, config: dict, steps: int, result: dict) -> list[str]:
+    """What a run trained for ``steps`` steps has still to do: an evaluation a stop after
+    its last step left out, and a final comparison its config asks for."""
+    left = []
+    if evaluation_missed(run_dir, config["eval_freq"], steps):
+        left.append(LAST_EVALUATION)
+    if config["final_episodes"] and "comparison" not in result:
+        left.append(FINAL_COMPARISON)
+    return left
 
 
 def _save_trained(model, config: dict, run_dir: Path, level, clock: TrainingClock) -> dict:

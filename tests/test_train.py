@@ -984,6 +984,36 @@ def test_a_signal_during_the_last_update_leaves_the_trained_run(tmp_path, monkey
     assert json.loads((run_dir / run_folder.RESULT).read_text())["timesteps"] == 64
 
 
+def test_resume_makes_up_the_last_evaluation_a_signal_during_the_last_update_skipped(
+    tmp_path, monkeypatch, capsys
+):
+    """PPO is evaluated after its last update; a signal during that update skipped the
+    evaluation, and --resume of the trained run said it had reached its steps: the final
+    weights were never scored and could never become the best model."""
+    signal_during(monkeypatch, PPO, "train")
+    run_dir = tmp_path / "run"
+    assert train.main(grasp_ppo_args(run_dir, 64, "--eval-freq", "64")) == 130
+    assert "Run its last evaluation with: python train.py --resume" in capsys.readouterr().out
+    assert run_folder.read_evaluations(run_dir) == []
+    assert not (run_dir / run_folder.BEST_MODEL).exists()
+    monkeypatch.undo()
+    model = (run_dir / run_folder.FINAL_MODEL).read_bytes()
+    assert train.main(["--resume", str(run_dir), "--no-progress-bar"]) == 0
+    assert "running its last evaluation" in capsys.readouterr().out
+    (row,) = run_folder.read_evaluations(run_dir)
+    trained_seconds = json.loads((run_dir / run_folder.RESULT).read_text())["train_seconds"]
+    assert row["timesteps"] == 64 and row["wall_seconds"] == trained_seconds
+    # The first evaluation is the best so far: the final model is the best model.
+    assert (run_dir / run_folder.BEST_MODEL).read_bytes() == model
+    assert (run_dir / run_folder.FINAL_MODEL).read_bytes() == model  # no further training
+    assert (run_dir / run_folder.LEARNING_CURVE).is_file()
+    # Made up once: the run is complete.
+    with pytest.raises(SystemExit) as exit_info:
+        train.main(["--resume", str(run_dir), "--no-progress-bar"])
+    assert exit_info.value.code == 2
+    assert "already reached 64 of its 64 steps" in capsys.readouterr().err
+
+
 def test_a_signal_while_the_trained_run_is_saved_waits_for_the_save(tmp_path, monkeypatch):
     """Acted on between model.zip and the final checkpoint, a signal left no checkpoint and
     no result.json: neither --resume nor a new start took the folder."""
