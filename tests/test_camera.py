@@ -38,7 +38,7 @@ from liuxing_envs.sim.scene import (
     load_scene_spec,
     reset_to_home,
 )
-from tests.forking import outcome_in_forked_child
+from tests.forked_child import outcome_in_forked_child
 
 # The test box: 0.10 x 0.06 x 0.08 m, yawed 30 deg, resting on the table in front of the arm.
 BOX_HALF = np.array([0.05, 0.03, 0.04])

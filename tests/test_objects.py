@@ -27,7 +27,7 @@ from liuxing_envs.sim.objects import (
     observation_viewpoints,
     surface_samples,
 )
-from tests.forking import outcome_in_forked_child
+from tests.forked_child import outcome_in_forked_child
 
 MULTI_PART = (
     "mug", "table", "chair", "stacked_blocks", "t_pipe", "step_pyramid", "ring_stand", "stool",
