@@ -153,7 +153,9 @@ def policy_contestant(
             "are missing: evaluating it on raw observations would be meaningless"
         )
     policy = _load(algo, model_path, normalizer_path if normalize else None)
-    label = path.name if path.is_dir() else f"{path.parent.name}/{path.stem}"
+    # Resolved: "." (run from inside the run folder) has no name, and "model.zip" no parent's.
+    named = path.resolve()
+    label = named.name if named.is_dir() else f"{named.parent.name}/{named.stem}"
     return Contestant(
         label=label,
         group=algo,
@@ -335,6 +337,13 @@ def build_contestants(
     if env_id is not None and env_id not in env_ids:
         env_ids.append(env_id)
     if not env_ids:
+        if named_baselines:  # a run folder's name mistyped, or a baseline's without --env
+            raise ContestantError(
+                f"{', '.join(map(repr, named_baselines))}: no such run folder or model file, "
+                "and baseline names need --env ("
+                + "; ".join(f"{e}: {', '.join(baseline_names(e))}" for e in BASELINES)
+                + ")"
+            )
         raise ContestantError(
             "nothing to evaluate on: give a run folder or model file, or --env with baselines"
         )
@@ -368,6 +377,14 @@ def build_contestants(
         contestant.env_kwargs.update(env_kwargs)
     for current in env_ids:
         check_env_kwargs(current, env_kwargs)
+        allowed = baseline_names(current)
+        for name in named_baselines:
+            if name not in allowed:
+                raise ContestantError(
+                    f"{name!r} is neither a run folder or model file (none of that name "
+                    f"exists) nor a baseline of {current}{closest(name, allowed)}; its "
+                    f"baselines: {', '.join(allowed)}"
+                )
         first_policy = next((c for c in contestants if c.env_id == current), None)
         scene = dict(first_policy.env_kwargs) if first_policy else dict(env_kwargs)
         wanted = list(named_baselines)

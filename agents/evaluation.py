@@ -40,6 +40,9 @@ class Task:
     explicit_scene_kwarg: str
     baseline: str
     make_baseline: Callable
+    #: whether the metric is a yes/no outcome (0 or 1 per episode), which has no IQM: the
+    #: trimmed mean of 0/1 values is a distorted rate (80% success reads as 1.0)
+    metric_is_binary: bool = False
     #: kwargs the baseline's env needs on top of the run's (e.g. the camera it reads)
     baseline_env_kwargs: Mapping = field(default_factory=dict)
     #: further ``info`` keys worth reporting, read at each episode's end
@@ -74,6 +77,7 @@ TASKS = {
     "InstrumentGrasp-v0": Task(
         metric="is_success",
         metric_label="success rate",
+        metric_is_binary=True,
         split_kwarg="instrument_set",
         explicit_scene_kwarg="instruments",
         baseline="scripted-grasp",

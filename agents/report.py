@@ -186,7 +186,8 @@ def _progress_bar(total: int, enabled: bool):
 #: of these are different methods, not training seeds of one.
 TRAINING_SETTINGS = (
     "n_timesteps", "n_envs", "policy", "normalize", "hyperparams", "demonstrations",
-    "start_curriculum", "init_from", "eval_env_kwargs", "eval_freq", "eval_episodes",
+    "start_curriculum", "init_from", "env_kwargs", "eval_env_kwargs", "eval_freq",
+    "eval_episodes",
 )  # fmt: skip
 
 
@@ -329,7 +330,7 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
             others = [other for other in groups if other[0] == group and other != key]
             if others:
                 differs = (
-                    "other training settings (hyper-parameters, steps or evaluation)"
+                    "other training settings (env kwargs, hyper-parameters, steps or evaluation)"
                     if any(other[1] == env_settings for other in others)
                     else "other env kwargs"
                 )
@@ -355,14 +356,18 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
         aggregate = {
             "group": group,
             "runs": [m["label"] for m in members],
-            "iqm": iqm(scores),
-            "iqm_ci95": list(stratified_bootstrap_ci(scores, iqm)),
+            "iqm": None,
+            "iqm_ci95": None,
             "mean": float(scores.mean()),
             "mean_ci95": list(stratified_bootstrap_ci(scores, np.mean)),
             # Whole seeds resampled: what a new set of seeds could do on these episodes.
-            "iqm_seed_ci95": list(run_bootstrap_ci(scores, iqm)),
+            "iqm_seed_ci95": None,
             "mean_seed_ci95": list(run_bootstrap_ci(scores, np.mean)),
         }
+        if not task.metric_is_binary:
+            aggregate["iqm"] = iqm(scores)
+            aggregate["iqm_ci95"] = list(stratified_bootstrap_ci(scores, iqm))
+            aggregate["iqm_seed_ci95"] = list(run_bootstrap_ci(scores, iqm))
         if baseline is not None and section["paired"]:
             reference = _scores(baseline, task.metric)[None]
             aggregate["probability_of_improvement"] = {
@@ -595,10 +600,14 @@ def markdown(report: dict) -> str:
             ]
             for a in section["aggregates"]:
                 poi = a.get("probability_of_improvement")
+                iqm_text = "- (yes/no outcomes)"
+                if a["iqm"] is not None:
+                    iqm_text = (
+                        f"{_ci({'mean': a['iqm'], 'ci95': a['iqm_seed_ci95']})} "
+                        f"{interval_text(a['iqm_ci95'])}"
+                    )
                 lines.append(
-                    f"| {a['group']} | {len(a['runs'])} | "
-                    f"{_ci({'mean': a['iqm'], 'ci95': a['iqm_seed_ci95']})} "
-                    f"{interval_text(a['iqm_ci95'])} | "
+                    f"| {a['group']} | {len(a['runs'])} | {iqm_text} | "
                     f"{_ci({'mean': a['mean'], 'ci95': a['mean_seed_ci95']})} "
                     f"{interval_text(a['mean_ci95'])} | "
                     + (_ci({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2) if poi else "-")

@@ -303,6 +303,57 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     assert "ppo_seed5: not aggregated with the other ppo runs, it ran with other training" in note
 
 
+def grasp_seed_result(label: str, seed: int, successes: list[bool], training: dict) -> dict:
+    """What the report keeps of one trained grasp run's episodes (the fields aggregation reads)."""
+    return {
+        "label": label,
+        "group": "sac",
+        "kind": "policy",
+        "env_kwargs": {"obs_mode": "state"},
+        "training_settings": training,
+        "training_seed": seed,
+        "episodes": [
+            {"instrument": "scalpel", "is_success": success, "seed": 100 + k}
+            for k, success in enumerate(successes)
+        ],
+    }
+
+
+def test_yes_no_outcomes_get_a_mean_but_no_iqm_across_seeds():
+    """The IQM of 0/1 outcomes trims to a distorted rate: three seeds succeeding in 80% of
+    episodes each had an 'IQM' of 1.0 beside their mean of 0.8."""
+    from agents.report import _environment_section, _training_settings
+
+    training = _training_settings({"env_kwargs": {"obs_mode": "state"}})
+    pattern = [True, True, True, True, False] * 4  # 80%
+    results = [grasp_seed_result(f"sac_seed{s}", s, pattern, training) for s in (0, 1, 2)]
+    (aggregate,) = _environment_section("InstrumentGrasp-v0", results)["aggregates"]
+    assert aggregate["mean"] == pytest.approx(0.8)
+    assert aggregate["iqm"] is None and aggregate["iqm_ci95"] is None
+    assert aggregate["iqm_seed_ci95"] is None
+    assert_ci_holds_mean({"mean": aggregate["mean"], "ci95": aggregate["mean_ci95"]})
+
+
+def test_runs_trained_in_other_env_kwargs_are_not_seeds_of_one_method():
+    """evaluate.py scores every run on the held-out split, so a run trained on another split
+    (or reward) showed the same evaluation kwargs and was averaged in as one more seed."""
+    from agents.report import _environment_section, _training_settings
+
+    procedural = _training_settings({"env_kwargs": {"object_set": "procedural"}})
+    library = _training_settings({"env_kwargs": {"object_set": "train"}})
+    assert procedural != library
+    pattern = [True, False] * 5
+    results = [
+        grasp_seed_result("sac_seed0", 0, pattern, procedural),
+        grasp_seed_result("sac_seed1", 1, pattern, procedural),
+        grasp_seed_result("sac_seed2", 2, pattern, library),
+    ]
+    section = _environment_section("InstrumentGrasp-v0", results)
+    assert [a["runs"] for a in section["aggregates"]] == [["sac_seed0", "sac_seed1"]]
+    (note,) = section["aggregate_notes"]
+    assert note.startswith("sac_seed2: not aggregated") and "(env kwargs," in note
+
+
 # --- bad input --------------------------------------------------------------------------------
 
 
@@ -335,6 +386,12 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "'policies/ViewPlanning-v0/ppo/' is given more than once",
         ),
         (["runs/no/such/run"], "does not exist"),
+        # A run folder's name mistyped (no "/") reads as a baseline name: say both.
+        (["ppo_sed0"], "'ppo_sed0': no such run folder or model file, and baseline names need"),
+        (
+            ["--env", "ViewPlanning-v0", "ppo_sed0"],
+            "'ppo_sed0' is neither a run folder or model file (none of that name exists) nor",
+        ),
         ([], "nothing to evaluate"),
         (
             ["--env", "ViewPlanning-v0", "--env-kwargs", "view_budgt=3"],
@@ -380,6 +437,19 @@ def test_a_model_that_does_not_fit_its_env_fails_before_any_episode(tmp_path):
     stderr = evaluate_fails(str(SHIPPED_VIEW_POLICY), "--env-kwargs", "view_budget=6", out=out)
     assert "does not fit ViewPlanning-v0" in stderr and "view_history" in stderr
     assert not out.exists()
+
+
+def test_a_run_folder_given_as_dot_is_labelled_with_its_name(tmp_path, monkeypatch):
+    """Labels come from the path as given: "." was labelled "" (its video ``videos/.mp4``)."""
+    from agents.contestants import build_contestants
+
+    run_dir = tmp_path / "ppo_seed4"
+    shutil.copytree(SHIPPED_VIEW_POLICY, run_dir)
+    monkeypatch.chdir(run_dir)
+    (policy,) = build_contestants(["."], baselines=[])
+    assert policy.label == "ppo_seed4"
+    (lone,) = build_contestants([run_folder.BEST_MODEL], env_id="ViewPlanning-v0", baselines=[])
+    assert lone.label == "ppo_seed4/best_model"
 
 
 def test_a_run_folder_whose_config_names_another_algorithm_fails_cleanly(tmp_path):
