@@ -297,6 +297,10 @@ def _scores(result: dict, metric: str) -> np.ndarray:
     return np.array([float(e[metric]) for e in result["episodes"]])
 
 
+def _without(kwargs: dict, keys) -> dict:
+    return {key: value for key, value in kwargs.items() if key not in keys}
+
+
 def _environment_section(env_id: str, results: list[dict]) -> dict:
     task = task_for(env_id)
     scene_keys = (
@@ -369,12 +373,20 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
             aggregate["iqm_ci95"] = list(stratified_bootstrap_ci(scores, iqm))
             aggregate["iqm_seed_ci95"] = list(run_bootstrap_ci(scores, iqm))
         if baseline is not None and section["paired"]:
-            reference = _scores(baseline, task.metric)[None]
-            aggregate["probability_of_improvement"] = {
-                "over": task.baseline,
-                "value": probability_of_improvement(scores, reference),
-                "ci95": list(probability_of_improvement_ci(scores, reference)),
-            }
+            # The baseline ran in the first policy's env kwargs (plus what it reads itself):
+            # another group's, say another view budget, would compare unlike episodes.
+            own = task.baseline_env_kwargs
+            if _without(members[0]["env_kwargs"], own) == _without(baseline["env_kwargs"], own):
+                reference = _scores(baseline, task.metric)[None]
+                aggregate["probability_of_improvement"] = {
+                    "over": task.baseline,
+                    "value": probability_of_improvement(scores, reference),
+                    "ci95": list(probability_of_improvement_ci(scores, reference)),
+                }
+            else:
+                aggregate["no_improvement_because"] = (
+                    f"{task.baseline} ran in other env kwargs than these runs"
+                )
         section["aggregates"].append(aggregate)
     return section
 
@@ -610,7 +622,13 @@ def markdown(report: dict) -> str:
                     f"| {a['group']} | {len(a['runs'])} | {iqm_text} | "
                     f"{_ci({'mean': a['mean'], 'ci95': a['mean_seed_ci95']})} "
                     f"{interval_text(a['mean_ci95'])} | "
-                    + (_ci({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2) if poi else "-")
+                    + (
+                        _ci({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2)
+                        if poi
+                        else f"- ({a['no_improvement_because']})"
+                        if "no_improvement_because" in a
+                        else "-"
+                    )
                     + " |"
                 )
     figures = report.get("figures", {})

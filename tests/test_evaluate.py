@@ -354,6 +354,34 @@ def test_runs_trained_in_other_env_kwargs_are_not_seeds_of_one_method():
     assert note.startswith("sac_seed2: not aggregated") and "(env kwargs," in note
 
 
+def test_no_probability_of_improvement_over_a_baseline_run_in_other_env_kwargs():
+    """The baseline runs in the first policy's env kwargs: a second group's P(improvement)
+    over it compared episodes of another view budget and called them paired."""
+    from agents.report import _environment_section, _training_settings
+
+    def run(label, seed, budget, kind="policy", group="ppo"):
+        return {
+            "label": label,
+            "group": group,
+            "kind": kind,
+            "env_kwargs": {"view_budget": budget},
+            "training_settings": _training_settings({"env_kwargs": {"view_budget": budget}}),
+            "training_seed": seed if kind == "policy" else None,
+            "episodes": [
+                {"object": "mug", "scale": 1.0, "position": k, "yaw": 0.0, "coverage": c}
+                for k, c in enumerate([0.9, 0.8, 0.7])
+            ],
+        }
+
+    results = [run("a0", 0, 4), run("a1", 1, 4), run("b0", 0, 6), run("b1", 1, 6)]
+    results.append(run("four-view", None, 4, kind="baseline", group="four-view"))
+    section = _environment_section("ViewPlanning-v0", results)
+    four, six = section["aggregates"]
+    assert four["runs"] == ["a0", "a1"] and "probability_of_improvement" in four
+    assert six["runs"] == ["b0", "b1"] and "probability_of_improvement" not in six
+    assert "four-view ran in other env kwargs" in six["no_improvement_because"]
+
+
 # --- bad input --------------------------------------------------------------------------------
 
 
