@@ -604,7 +604,10 @@ def markdown(report: dict) -> str:
                 "(how much a new set of seeds could move the figure on these episodes), and "
                 "*stratified*, resampling seeds within each episode as in Agarwal et al. 2021 "
                 "(narrower: it mixes seeds within a resample, so most of their spread drops out; "
-                "for comparison with published figures):",
+                "for comparison with published figures). P(improvement)'s interval resamples "
+                "seeds within each episode too. All three hold these episodes fixed, and with "
+                "a handful of seeds the *seeds* interval is little wider than their own range "
+                "(2 seeds give 3 distinct resamples):",
                 "",
                 "| method | runs | IQM [seeds] [stratified] | mean [seeds] [stratified] | "
                 f"P(improvement over {section['baseline']}) |",
