@@ -621,18 +621,15 @@ def markdown(report: dict) -> str:
                         f"{_ci({'mean': a['iqm'], 'ci95': a['iqm_seed_ci95']})} "
                         f"{interval_text(a['iqm_ci95'])}"
                     )
+                poi_text = "-"
+                if poi:
+                    poi_text = _ci({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2)
+                elif "no_improvement_because" in a:
+                    poi_text = f"- ({a['no_improvement_because']})"
                 lines.append(
                     f"| {a['group']} | {len(a['runs'])} | {iqm_text} | "
                     f"{_ci({'mean': a['mean'], 'ci95': a['mean_seed_ci95']})} "
-                    f"{interval_text(a['mean_ci95'])} | "
-                    + (
-                        _ci({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2)
-                        if poi
-                        else f"- ({a['no_improvement_because']})"
-                        if "no_improvement_because" in a
-                        else "-"
-                    )
-                    + " |"
+                    f"{interval_text(a['mean_ci95'])} | {poi_text} |"
                 )
     figures = report.get("figures", {})
     if figures:

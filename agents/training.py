@@ -634,16 +634,25 @@ class PeriodicEvaluation(_Periodic):
         )
         self.logger.record("eval/mean_reward", row["mean_return"])
         self.logger.record(f"eval/{self.task.metric}", row["mean_metric"])
-        if row["mean_return"] > self.best:
-            self.best = row["mean_return"]
-            normalizer = self.model.get_vec_normalize_env()
-            if normalizer is not None:
-                run_folder.save_atomically(
-                    normalizer.save, self.run_dir / run_folder.BEST_NORMALIZER
-                )
+
+        def save_model(path: Path) -> None:
             setattr(self.model, TRAINED_SECONDS, row["wall_seconds"])  # behind this model
-            run_folder.save_atomically(self.model.save, self.run_dir / run_folder.BEST_MODEL)
+            self.model.save(path)
+
+        normalizer = self.model.get_vec_normalize_env()
+        self.keep_if_best(row, save_model, normalizer.save if normalizer is not None else None)
         return row
+
+    def keep_if_best(self, row: dict, save_model, save_normalizer=None) -> None:
+        """When ``row`` beats the best evaluation so far, save the best model with
+        ``save_model(path)`` and its normaliser with ``save_normalizer(path)``, the normaliser
+        first: a best model is only ever taken with its own."""
+        if row["mean_return"] <= self.best:
+            return
+        self.best = row["mean_return"]
+        if save_normalizer is not None:
+            run_folder.save_atomically(save_normalizer, self.run_dir / run_folder.BEST_NORMALIZER)
+        run_folder.save_atomically(save_model, self.run_dir / run_folder.BEST_MODEL)
 
     def score(self, policy: SB3Policy, steps: int, seconds: float) -> dict:
         """Runs the evaluation episodes with ``policy`` (trained for ``steps`` steps in
@@ -683,20 +692,18 @@ def _make_up_last_evaluation(run_dir: Path, config: dict, steps: int, result: di
         row = evaluation.score(load_policy(run_dir, config, best=False), steps, seconds)
     finally:
         evaluation.env.close()
+    task = evaluation.task
     print(
         f"evaluation at {row['timesteps']} steps: mean return {row['mean_return']:.3f}, "
-        f"{task_for(config['env_id']).metric} {row['mean_metric']:.3f}"
+        f"{task.metric} {row['mean_metric']:.3f}"
     )
-    if row["mean_return"] > evaluation.best:
-        # The normaliser first, as training saves them: a best model is taken with its own.
-        for final, best in (
-            (run_folder.FINAL_NORMALIZER, run_folder.BEST_NORMALIZER),
-            (run_folder.FINAL_MODEL, run_folder.BEST_MODEL),
-        ):
-            if (run_dir / final).is_file():
-                copy = functools.partial(shutil.copyfile, run_dir / final)
-                run_folder.save_atomically(copy, run_dir / best)
-    plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
+    normalizer = run_dir / run_folder.FINAL_NORMALIZER
+    evaluation.keep_if_best(
+        row,
+        functools.partial(shutil.copyfile, run_dir / run_folder.FINAL_MODEL),
+        functools.partial(shutil.copyfile, normalizer) if normalizer.is_file() else None,
+    )
+    plot_learning_curve(run_dir, task.metric_label, config["eval_episodes"])
 
 
 # --- runs ------------------------------------------------------------------------------------
