@@ -86,7 +86,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="deterministic actions for trained policies (default: on)",
     )
     report = parser.add_argument_group("report")
-    report.add_argument("--out", default="reports/latest", help="report folder")
+    report.add_argument(
+        "--out",
+        default="reports/latest",
+        help="report folder (an earlier report's meshes, videos and figures there are replaced)",
+    )
     report.add_argument(
         "--reconstruct-episodes",
         type=int,

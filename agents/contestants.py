@@ -46,6 +46,7 @@ class Contestant:
     make_policy: Callable = field(repr=False)  #: env -> policy with SB3's ``predict``
     seed: int | None = None  #: training seed of a policy
     config: dict | None = field(default=None, repr=False)
+    model_file: str | None = None  #: the policy's .zip that is scored (best, final, a checkpoint)
 
 
 def check_env_id(env_id: str) -> str:
@@ -166,6 +167,7 @@ def policy_contestant(
         make_policy=lambda env: policy,
         seed=seed,
         config=config,
+        model_file=str(model_path),  # as the source was given: a relative path stays so
     )
 
 
@@ -324,6 +326,12 @@ def build_contestants(
             policy_contestant(
                 source, env_id=env_id, algo=algo, best=best, raw_observations=raw_observations
             )
+        )
+    if raw_observations and not any(c.config is None for c in contestants):
+        # A run's config.yml says whether it normalised; the flag would be silently ignored.
+        raise ContestantError(
+            "--raw-observations is for lone model files (a run folder's config.yml says "
+            "whether its policy was trained on normalised observations), and none is given"
         )
     env_ids = list(dict.fromkeys(c.env_id for c in contestants))
     uses_env = named_baselines or any(c.config is None for c in contestants)  # lone zips

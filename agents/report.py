@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -33,7 +34,7 @@ from agents.statistics import (
     wilson_interval,
 )
 from agents.training import SAVED_CONFIG_DEFAULTS
-from agents.video import record_videos
+from agents.video import VIDEOS_FOLDER, record_videos
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 
 DEFAULT_EPISODES = 100
@@ -43,6 +44,15 @@ DEFAULT_VIDEO_EPISODES = 2
 DEFAULT_TRACE_EPISODES = 5
 REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
+#: What a report writes into its folder besides report.json and report.md: reconstructions
+#: (.ply, .pcd and pictures per contestant and seed), videos and the figures.
+RECONSTRUCTIONS_FOLDER = "reconstructions"
+COVERAGE_FIGURE = "coverage_vs_views.png"
+FORCE_TRACES_FIGURE = "force_traces.png"
+GRASP_OUTCOMES_FIGURE = "grasp_outcomes.png"
+PEAK_FORCES_FIGURE = "peak_forces.png"
+REPORT_SUBFOLDERS = (RECONSTRUCTIONS_FOLDER, VIDEOS_FOLDER)
+REPORT_FIGURES = (COVERAGE_FIGURE, FORCE_TRACES_FIGURE, GRASP_OUTCOMES_FIGURE, PEAK_FORCES_FIGURE)
 
 
 @dataclass
@@ -70,6 +80,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         for env in envs.values():
             env.close()
         raise ContestantError(f"cannot write the report into {str(out)!r}: {error}") from error
+    remove_previous_report_outputs(out)
     source = run_folder.Source.of_checkout()  # as it starts: edits while it runs do not count
     seeds = range(settings.seed, settings.seed + settings.episodes)
     progress = _progress_bar(len(contestants) * settings.episodes, settings.progress)
@@ -131,6 +142,20 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     return report
 
 
+def remove_previous_report_outputs(out: Path) -> None:
+    """Remove what an earlier report in ``out`` wrote besides its numbers, so that none of it
+    (a mesh this run's Poisson step did not replace, a video of a contestant left out now) is
+    taken for this report's. Only in a folder holding a report.json: another folder's
+    ``videos/`` is not ours to delete."""
+    if not (out / REPORT_JSON).is_file():
+        return
+    for name in REPORT_SUBFOLDERS:
+        if (out / name).is_dir() and not (out / name).is_symlink():
+            shutil.rmtree(out / name)
+    for name in REPORT_FIGURES:
+        (out / name).unlink(missing_ok=True)
+
+
 def _write_report(report: dict, out: Path, source: run_folder.Source) -> None:
     """report.json and report.md of ``report``, and the patch of a dirty checkout beside them
     (named in both). An earlier report's report.md goes first: a stop between the files must
@@ -170,7 +195,7 @@ def _recorder(contestant: Contestant, settings: Settings, out: Path):
     if contestant.env_id == "ViewPlanning-v0":
         return ViewPlanningRecorder(
             reconstruct_episodes=settings.reconstruct_episodes,
-            save_dir=out / "reconstructions" / slug(contestant.label),
+            save_dir=out / RECONSTRUCTIONS_FOLDER / slug(contestant.label),
             save_episodes=min(settings.save_episodes, settings.reconstruct_episodes),
         )
     return GraspRecorder()
@@ -217,6 +242,7 @@ def _describe(contestant: Contestant) -> dict:
         "env_id": contestant.env_id,
         "env_kwargs": contestant.env_kwargs,
         "source": contestant.source,
+        "model_file": contestant.model_file,
         "training_seed": contestant.seed,
         "training_command": (config or {}).get("command"),
         "training_settings": _training_settings(config),
@@ -399,7 +425,7 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
         if env_id == "ViewPlanning-v0":
             figures["coverage_vs_views"] = _rel(
                 plotting.plot_coverage_curves(
-                    out / "coverage_vs_views.png",
+                    out / COVERAGE_FIGURE,
                     {r["label"]: r["summary"]["coverage_after_view"] for r in results},
                 ),
                 out,
@@ -408,7 +434,7 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
             saved = min(settings.save_episodes, settings.reconstruct_episodes)
             saved_seeds = range(settings.seed, settings.seed + saved)
             for result in results:
-                folder = out / "reconstructions" / slug(result["label"])
+                folder = out / RECONSTRUCTIONS_FOLDER / slug(result["label"])
                 picture = plotting.plot_reconstructions(
                     folder / "reconstructions.png", folder, result["label"], saved_seeds
                 )
@@ -419,7 +445,7 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
             limits = results[0]["limits"]
             figures["force_traces"] = _rel(
                 plotting.plot_force_traces(
-                    out / "force_traces.png",
+                    out / FORCE_TRACES_FIGURE,
                     {
                         r["label"]: [
                             e["force_trace"] for e in r["episodes"][:DEFAULT_TRACE_EPISODES]
@@ -432,13 +458,13 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
             )
             figures["grasp_outcomes"] = _rel(
                 plotting.plot_grasp_outcomes(
-                    out / "grasp_outcomes.png", {r["label"]: r["summary"] for r in results}
+                    out / GRASP_OUTCOMES_FIGURE, {r["label"]: r["summary"] for r in results}
                 ),
                 out,
             )
             figures["peak_forces"] = _rel(
                 plotting.plot_peak_forces(
-                    out / "peak_forces.png",
+                    out / PEAK_FORCES_FIGURE,
                     {r["label"]: [e["peak_force"] for e in r["episodes"]] for r in results},
                     limits["force_limit"],
                     limits["hard_limit"],
@@ -514,15 +540,29 @@ def _view_planning_tables(section: dict) -> list[str]:
         lines.append(
             f"| {r['label']} | " + " | ".join(f"{entry['mean']:.3f}" for entry in curve) + " |"
         )
-    reconstructed = results[0]["summary"]["chamfer"]
-    if reconstructed:
-        lines += [
-            "",
-            f"Chamfer distance and F-score: open3d Poisson reconstructions of the first "
-            f"{reconstructed['n']} episodes of each contestant, against dense ground-truth "
-            "surface samples (τ = 1% of the object's bounding-box diagonal).",
-        ]
+    lines += _reconstruction_note(results)
     return lines
+
+
+def _reconstruction_note(results: list[dict]) -> list[str]:
+    """What the Chamfer and F-score columns average: the episodes reconstructed, less, for
+    Chamfer, those whose scan fused nothing (no finite distance), named per contestant."""
+    reconstructed = max(sum("chamfer" in e for e in r["episodes"]) for r in results)
+    if not reconstructed:
+        return []
+    note = (
+        f"Chamfer distance and F-score: open3d Poisson reconstructions of the first "
+        f"{reconstructed} episodes of each contestant, against dense ground-truth surface "
+        "samples (τ = 1% of the object's bounding-box diagonal)."
+    )
+    with_distance = {r["label"]: (r["summary"]["chamfer"] or {"n": 0})["n"] for r in results}
+    fewer = [f"{label} {n}" for label, n in with_distance.items() if n < reconstructed]
+    if fewer:
+        note += (
+            " A scan that fused nothing has no Chamfer distance (its F-score is 0), so the "
+            f"Chamfer column averages fewer: {', '.join(fewer)} of {reconstructed}."
+        )
+    return ["", note]
 
 
 def _grasp_tables(section: dict) -> list[str]:
@@ -585,8 +625,10 @@ def markdown(report: dict) -> str:
         lines.append("")
         for r in section["contestants"]:
             extra = f", seed {r['training_seed']}" if r["training_seed"] is not None else ""
+            model = r.get("model_file")  # absent from reports written before it was recorded
+            scored = f" (scored: `{Path(model).name}`)" if model else ""
             lines.append(
-                f"- **{r['label']}** ({_kind(r)}{extra}): `{r['source']}`, env kwargs "
+                f"- **{r['label']}** ({_kind(r)}{extra}): `{r['source']}`{scored}, env kwargs "
                 f"`{json.dumps(r['env_kwargs'])}`"
             )
         lines.append("")

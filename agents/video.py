@@ -17,6 +17,8 @@ from agents.evaluation import make_env, seed_sampling
 VIEW_SECONDS = 1.0
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
+VIDEOS_FOLDER = "videos"
+
 
 def _readout(env_id: str, info: dict, seconds: float) -> list[str]:
     if env_id == "ViewPlanning-v0":
@@ -47,7 +49,7 @@ def record_videos(
     """One mp4 per contestant under ``out/videos/``, its episodes of ``seeds`` one after
     another, acting as the report's episodes do (``deterministic``, or sampled from torch's
     generator seeded with each episode's seed); returns the written paths."""
-    folder = Path(out) / "videos"
+    folder = Path(out) / VIDEOS_FOLDER
     folder.mkdir(parents=True, exist_ok=True)
     seeds = list(seeds)
     written = []

@@ -203,6 +203,8 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
     by_label = {c["label"]: c for c in section["contestants"]}
     assert set(by_label) == {"grasp_sac", "scripted-grasp", "squeeze"}
     assert by_label["grasp_sac"]["env_kwargs"]["instrument_set"] == "train"
+    assert by_label["grasp_sac"]["model_file"] == str(grasp_run / "best_model.zip")
+    assert by_label["squeeze"]["model_file"] is None
     for contestant in section["contestants"]:
         summary = contestant["summary"]
         assert_ci_holds_mean(summary["success"], "rate")
@@ -444,6 +446,10 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "render_mode is evaluate.py's to set",
         ),
         (["policies/ViewPlanning-v0/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
+        (
+            ["policies/ViewPlanning-v0/ppo", "--raw-observations"],
+            "--raw-observations is for lone model files",
+        ),
         (["--env", "ViewPlanning-v0", "--baselines", "none"], "leaves no contestant"),
         (
             ["--env", "InstrumentGrasp-v0", "squeeze", "--object-set", "train"],
@@ -714,7 +720,7 @@ def test_a_scan_with_nothing_fused_is_recorded_without_a_chamfer_distance():
     # Its Chamfer distance is infinite, which report.json (strict JSON) cannot hold: the
     # episode records None, and the summary averages the episodes that have one.
     from agents.recorders import ViewPlanningRecorder
-    from agents.report import _view_planning_summary
+    from agents.report import _reconstruction_note, _view_planning_summary
     from liuxing_envs.envs.view_planning import ViewPlanningEnv
 
     env = ViewPlanningEnv(objects=["box"], scales=(1.0,), coverage_samples=1024)
@@ -732,6 +738,39 @@ def test_a_scan_with_nothing_fused_is_recorded_without_a_chamfer_distance():
     summary = _view_planning_summary(records)
     assert summary["chamfer"]["n"] == 1 and summary["chamfer"]["mean"] == records[0]["chamfer"]
     json.dumps(records, allow_nan=False)
+    # The report's note counts both episodes as reconstructed and says Chamfer averages one.
+    note = " ".join(
+        _reconstruction_note([{"label": "ppo", "summary": summary, "episodes": records}])
+    )
+    assert "of the first 2 episodes" in note and "averages fewer: ppo 1 of 2" in note
+
+
+def test_a_report_into_an_earlier_reports_folder_removes_its_meshes_videos_and_figures(tmp_path):
+    from agents.report import remove_previous_report_outputs
+
+    def fill(folder: Path) -> list[Path]:
+        written = [
+            folder / "reconstructions" / "ppo" / "seed_7" / "reconstruction_mesh.ply",
+            folder / "videos" / "ppo.mp4",
+            folder / "coverage_vs_views.png",
+        ]
+        for path in written:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(b"x")
+        return written
+
+    report_folder, other_folder = tmp_path / "report", tmp_path / "not_a_report"
+    stale = fill(report_folder)
+    (report_folder / "report.json").write_text("{}")
+    (report_folder / "notes.txt").write_text("mine")
+    remove_previous_report_outputs(report_folder)
+    assert not any(path.exists() for path in stale)
+    assert not (report_folder / "reconstructions").exists()
+    assert (report_folder / "notes.txt").read_text() == "mine"  # not the report's
+    # Without a report.json the folder is not an earlier report's: nothing is ours to delete.
+    kept = fill(other_folder)
+    remove_previous_report_outputs(other_folder)
+    assert all(path.exists() for path in kept)
 
 
 def test_a_report_stopped_after_its_numbers_leaves_no_earlier_report_md(tmp_path, monkeypatch):
