@@ -89,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument(
         "--out",
         default="reports/latest",
-        help="report folder (an earlier report's meshes, videos and figures there are replaced)",
+        help="report folder (an earlier report's figures, meshes and videos there are replaced)",
     )
     report.add_argument(
         "--reconstruct-episodes",

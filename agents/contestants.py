@@ -327,12 +327,6 @@ def build_contestants(
                 source, env_id=env_id, algo=algo, best=best, raw_observations=raw_observations
             )
         )
-    if raw_observations and not any(c.config is None for c in contestants):
-        # A run's config.yml says whether it normalised; the flag would be silently ignored.
-        raise ContestantError(
-            "--raw-observations is for lone model files (a run folder's config.yml says "
-            "whether its policy was trained on normalised observations), and none is given"
-        )
     env_ids = list(dict.fromkeys(c.env_id for c in contestants))
     uses_env = named_baselines or any(c.config is None for c in contestants)  # lone zips
     if env_id is not None and env_ids and env_id not in env_ids and not uses_env:
@@ -418,5 +412,19 @@ def build_contestants(
         task = task_for(contestant.env_id)
         if task.explicit_scene_kwarg not in contestant.env_kwargs:
             contestant.env_kwargs[task.split_kwarg] = splits.get(contestant.env_id, HELD_OUT_SPLIT)
+    if raw_observations and not any(_scored_raw(c) for c in contestants):
+        # It would be ignored: it names no source, so it cannot be what the user meant.
+        raise ContestantError(
+            "--raw-observations is for a lone model file trained without normalisation, and "
+            "no source given is one (a run folder's config.yml, or a normaliser beside a zip, "
+            "says how its policy was trained): drop --raw-observations"
+        )
     unique_labels(contestants)
     return contestants
+
+
+def _scored_raw(contestant: Contestant) -> bool:
+    """A lone model zip with no normaliser beside it: the one --raw-observations is for."""
+    if contestant.kind != "policy" or contestant.config is not None:
+        return False
+    return not _normalizer_beside(Path(contestant.model_file)).is_file()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import datetime
 import json
-import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -23,6 +22,20 @@ from agents import plotting, run_folder
 from agents.contestants import Contestant, ContestantError, check_fits, make_checked_env, slug
 from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
 from agents.recorders import COVERAGE_LEVELS, GraspRecorder, ViewPlanningRecorder
+from agents.report_folder import (
+    COVERAGE_FIGURE,
+    FIGURES,
+    FORCE_TRACES_FIGURE,
+    GRASP_OUTCOMES_FIGURE,
+    PEAK_FORCES_FIGURE,
+    RECONSTRUCTIONS_FOLDER,
+    REPORT_JSON,
+    ReportFolderError,
+    check_subfolders,
+    earlier_report_files,
+    fresh_staging_folder,
+    replace_earlier_files,
+)
 from agents.statistics import (
     bootstrap_ci,
     interval_text,
@@ -34,7 +47,7 @@ from agents.statistics import (
     wilson_interval,
 )
 from agents.training import SAVED_CONFIG_DEFAULTS
-from agents.video import VIDEOS_FOLDER, record_videos
+from agents.video import record_videos
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 
 DEFAULT_EPISODES = 100
@@ -42,17 +55,7 @@ DEFAULT_RECONSTRUCT_EPISODES = 20
 DEFAULT_SAVE_EPISODES = 3
 DEFAULT_VIDEO_EPISODES = 2
 DEFAULT_TRACE_EPISODES = 5
-REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
-#: What a report writes into its folder besides report.json and report.md: reconstructions
-#: (.ply, .pcd and pictures per contestant and seed), videos and the figures.
-RECONSTRUCTIONS_FOLDER = "reconstructions"
-COVERAGE_FIGURE = "coverage_vs_views.png"
-FORCE_TRACES_FIGURE = "force_traces.png"
-GRASP_OUTCOMES_FIGURE = "grasp_outcomes.png"
-PEAK_FORCES_FIGURE = "peak_forces.png"
-REPORT_SUBFOLDERS = (RECONSTRUCTIONS_FOLDER, VIDEOS_FOLDER)
-REPORT_FIGURES = (COVERAGE_FIGURE, FORCE_TRACES_FIGURE, GRASP_OUTCOMES_FIGURE, PEAK_FORCES_FIGURE)
 
 
 @dataclass
@@ -75,12 +78,14 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     envs = _open_envs(contestants)  # fails on a misfit model before any episode runs
     out = Path(out)
     try:
-        prepare_output_folder(out, files=(REPORT_JSON, REPORT_MD, run_folder.GIT_DIFF))
-    except OutputFolderError as error:
+        prepare_output_folder(out, files=(REPORT_JSON, REPORT_MD, run_folder.GIT_DIFF, *FIGURES))
+        check_subfolders(out)
+    except (OutputFolderError, ReportFolderError) as error:
         for env in envs.values():
             env.close()
         raise ContestantError(f"cannot write the report into {str(out)!r}: {error}") from error
-    remove_previous_report_outputs(out)
+    earlier_files = earlier_report_files(out)  # read now: a stop leaves them all in place
+    staging = fresh_staging_folder(out)
     source = run_folder.Source.of_checkout()  # as it starts: edits while it runs do not count
     seeds = range(settings.seed, settings.seed + settings.episodes)
     progress = _progress_bar(len(contestants) * settings.episodes, settings.progress)
@@ -90,7 +95,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
             progress.set_description(contestant.label[:30])
             env = envs[_env_key(contestant)]
             task = task_for(contestant.env_id)
-            recorder = _recorder(contestant, settings, out)
+            recorder = _recorder(contestant, settings, staging)
             episodes = run_episodes(
                 env,
                 contestant.make_policy(env),
@@ -127,6 +132,8 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     # The figures and videos come after every episode: write the numbers first, so that a
     # failure drawing them loses nothing.
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
+    for problem in replace_earlier_files(out, earlier_files):
+        print(f"warning: {problem}", file=sys.stderr)
     _write_report(report, out, source)
     figures = _figures(report, out, settings)
     if settings.video_episodes:
@@ -140,20 +147,6 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     report["wall_seconds"] = round(time.perf_counter() - started, 1)
     _write_report(report, out, source)
     return report
-
-
-def remove_previous_report_outputs(out: Path) -> None:
-    """Remove what an earlier report in ``out`` wrote besides its numbers, so that none of it
-    (a mesh this run's Poisson step did not replace, a video of a contestant left out now) is
-    taken for this report's. Only in a folder holding a report.json: another folder's
-    ``videos/`` is not ours to delete."""
-    if not (out / REPORT_JSON).is_file():
-        return
-    for name in REPORT_SUBFOLDERS:
-        if (out / name).is_dir() and not (out / name).is_symlink():
-            shutil.rmtree(out / name)
-    for name in REPORT_FIGURES:
-        (out / name).unlink(missing_ok=True)
 
 
 def _write_report(report: dict, out: Path, source: run_folder.Source) -> None:
@@ -191,11 +184,11 @@ def _open_envs(contestants: Sequence[Contestant]) -> dict:
     return envs
 
 
-def _recorder(contestant: Contestant, settings: Settings, out: Path):
+def _recorder(contestant: Contestant, settings: Settings, reconstructions: Path):
     if contestant.env_id == "ViewPlanning-v0":
         return ViewPlanningRecorder(
             reconstruct_episodes=settings.reconstruct_episodes,
-            save_dir=out / RECONSTRUCTIONS_FOLDER / slug(contestant.label),
+            save_dir=reconstructions / slug(contestant.label),
             save_episodes=min(settings.save_episodes, settings.reconstruct_episodes),
         )
     return GraspRecorder()
@@ -626,7 +619,8 @@ def markdown(report: dict) -> str:
         for r in section["contestants"]:
             extra = f", seed {r['training_seed']}" if r["training_seed"] is not None else ""
             model = r.get("model_file")  # absent from reports written before it was recorded
-            scored = f" (scored: `{Path(model).name}`)" if model else ""
+            named = model and Path(model).name != Path(r["source"]).name  # a run folder's
+            scored = f" (scored: `{Path(model).name}`)" if named else ""
             lines.append(
                 f"- **{r['label']}** ({_kind(r)}{extra}): `{r['source']}`{scored}, env kwargs "
                 f"`{json.dumps(r['env_kwargs'])}`"

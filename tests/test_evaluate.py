@@ -205,6 +205,8 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
     assert by_label["grasp_sac"]["env_kwargs"]["instrument_set"] == "train"
     assert by_label["grasp_sac"]["model_file"] == str(grasp_run / "best_model.zip")
     assert by_label["squeeze"]["model_file"] is None
+    assert "grasp_sac** (trained, seed 0): `" in (out / "report.md").read_text()
+    assert "(scored: `best_model.zip`)" in (out / "report.md").read_text()
     for contestant in section["contestants"]:
         summary = contestant["summary"]
         assert_ci_holds_mean(summary["success"], "rate")
@@ -448,8 +450,15 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
         (["policies/ViewPlanning-v0/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
         (
             ["policies/ViewPlanning-v0/ppo", "--raw-observations"],
-            "--raw-observations is for lone model files",
+            "--raw-observations is for a lone model file trained without normalisation",
         ),
+        (
+            ["policies/ViewPlanning-v0/ppo/best_model.zip", "--raw-observations"],
+            "no source given is one (a run folder's config.yml",
+        ),
+        # The real mistake comes first: a mistyped run folder, no source at all.
+        (["ppo_sed0", "--raw-observations"], "'ppo_sed0': no such run folder or model file"),
+        (["--raw-observations"], "nothing to evaluate"),
         (["--env", "ViewPlanning-v0", "--baselines", "none"], "leaves no contestant"),
         (
             ["--env", "InstrumentGrasp-v0", "squeeze", "--object-set", "train"],
@@ -550,6 +559,9 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
     refused = evaluate_fails(str(lone), "--env", "InstrumentGrasp-v0")
     assert "vecnormalize.pkl" in refused and "--raw-observations" in refused
     shutil.copy(grasp_run / run_folder.FINAL_NORMALIZER, tmp_path / run_folder.FINAL_NORMALIZER)
+    # With its normaliser beside it the flag would be ignored: refused, not silently dropped.
+    with_flag = evaluate_fails(str(lone), "--env", "InstrumentGrasp-v0", "--raw-observations")
+    assert "drop --raw-observations" in with_flag
     out = tmp_path / "report"
     in_run = grasp_run / run_folder.FINAL_MODEL
     run_script(
@@ -745,32 +757,87 @@ def test_a_scan_with_nothing_fused_is_recorded_without_a_chamfer_distance():
     assert "of the first 2 episodes" in note and "averages fewer: ppo 1 of 2" in note
 
 
-def test_a_report_into_an_earlier_reports_folder_removes_its_meshes_videos_and_figures(tmp_path):
-    from agents.report import remove_previous_report_outputs
+def four_view_report(out: Path, seed: int) -> dict:
+    """A one-episode four-view report with one reconstruction saved, written into ``out``."""
+    from agents.contestants import build_contestants
+    from agents.report import Settings, evaluate
 
-    def fill(folder: Path) -> list[Path]:
-        written = [
-            folder / "reconstructions" / "ppo" / "seed_7" / "reconstruction_mesh.ply",
-            folder / "videos" / "ppo.mp4",
-            folder / "coverage_vs_views.png",
-        ]
-        for path in written:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(b"x")
-        return written
+    contestants = build_contestants(["four-view"], env_id="ViewPlanning-v0", baselines=[])
+    settings = Settings(episodes=1, seed=seed, reconstruct_episodes=1, save_episodes=1)
+    return evaluate(contestants, settings, out)
 
-    report_folder, other_folder = tmp_path / "report", tmp_path / "not_a_report"
-    stale = fill(report_folder)
-    (report_folder / "report.json").write_text("{}")
-    (report_folder / "notes.txt").write_text("mine")
-    remove_previous_report_outputs(report_folder)
-    assert not any(path.exists() for path in stale)
-    assert not (report_folder / "reconstructions").exists()
-    assert (report_folder / "notes.txt").read_text() == "mine"  # not the report's
-    # Without a report.json the folder is not an earlier report's: nothing is ours to delete.
-    kept = fill(other_folder)
-    remove_previous_report_outputs(other_folder)
-    assert all(path.exists() for path in kept)
+
+def test_a_report_into_an_earlier_reports_folder_replaces_its_files_and_no_others(tmp_path):
+    out = tmp_path / "report"
+    four_view_report(out, seed=5)
+    earlier_mesh_folder = out / "reconstructions" / "four-view" / "seed_5"
+    assert (earlier_mesh_folder / "ground_truth.ply").is_file()
+    stale = earlier_mesh_folder / "reconstruction_mesh_of_another_run.ply"
+    stale.write_bytes(b"x")
+    (out / "videos").mkdir()
+    (out / "videos" / "four-view.mp4").write_bytes(b"x")  # as if the last one had --video
+    (out / "videos" / "my_clip.mp4").write_bytes(b"mine")
+    (out / "notes.txt").write_text("mine")
+    report = four_view_report(out, seed=6)
+    assert not earlier_mesh_folder.exists() and not stale.exists()
+    assert (out / "reconstructions" / "four-view" / "seed_6" / "ground_truth.ply").is_file()
+    assert (out / report["figures"]["coverage_vs_views"]).is_file()
+    assert not (out / "videos" / "four-view.mp4").exists()
+    assert (out / "videos" / "my_clip.mp4").read_text() == "mine"  # not the report's
+    assert (out / "notes.txt").read_text() == "mine"
+    assert not (out / ".reconstructions.partial").exists()
+
+
+def test_a_report_stopped_during_its_episodes_leaves_the_earlier_report_whole(
+    tmp_path, monkeypatch
+):
+    import agents.report
+
+    out = tmp_path / "report"
+    four_view_report(out, seed=5)
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(agents.report, "run_episodes", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        four_view_report(out, seed=6)
+    after = sorted(p.relative_to(out) for p in out.rglob("*"))
+    assert [p for p in after if p.parts[0] != ".reconstructions.partial"] == before
+
+
+def test_only_an_evaluate_report_json_marks_files_as_an_earlier_reports(tmp_path):
+    from agents.report_folder import earlier_report_files
+
+    (tmp_path / "report.json").write_text(json.dumps({"figures": {}, "environments": {}}))
+    assert earlier_report_files(tmp_path) == []  # another tool's report.json
+    (tmp_path / "report.json").write_text("{not json")
+    assert earlier_report_files(tmp_path) == []
+    earlier = {
+        "environments": {"InstrumentGrasp-v0": {"contestants": [{"label": "sac"}]}},
+        "seeds": [0, 0],
+        "settings": {},
+        "figures": {"peak_forces": "peak_forces.png", "videos": ["../outside.mp4"]},
+    }
+    (tmp_path / "report.json").write_text(json.dumps(earlier))
+    named = {p.relative_to(tmp_path).as_posix() for p in earlier_report_files(tmp_path)}
+    assert {"peak_forces.png", "reconstructions/sac", "videos/sac.mp4"} <= named
+    assert not any(".." in name for name in named)  # nothing outside the folder
+
+
+def test_a_report_folder_whose_videos_folder_is_a_link_is_refused_before_any_episode(tmp_path):
+    from agents.contestants import ContestantError
+
+    elsewhere = tmp_path / "clips"
+    elsewhere.mkdir()
+    (elsewhere / "clip.mp4").write_bytes(b"mine")
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "videos").symlink_to(elsewhere)
+    with pytest.raises(ContestantError, match="videos is a link"):
+        four_view_report(out, seed=5)
+    assert (elsewhere / "clip.mp4").read_text() == "mine"
 
 
 def test_a_report_stopped_after_its_numbers_leaves_no_earlier_report_md(tmp_path, monkeypatch):
