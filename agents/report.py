@@ -31,6 +31,7 @@ from agents.report_folder import (
     RECONSTRUCTIONS_FOLDER,
     REPORT_JSON,
     ReportFolderError,
+    check_reconstruction_folders,
     check_subfolders,
     earlier_report_files,
     fresh_staging_folder,
@@ -80,11 +81,14 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     try:
         prepare_output_folder(out, files=(REPORT_JSON, REPORT_MD, run_folder.GIT_DIFF, *FIGURES))
         check_subfolders(out)
+        earlier_files = earlier_report_files(out)  # read now: a stop leaves them all in place
+        if settings.reconstruct_episodes and settings.save_episodes:
+            labels = [c.label for c in contestants if c.env_id == "ViewPlanning-v0"]
+            check_reconstruction_folders(out, labels, earlier_files)
     except (OutputFolderError, ReportFolderError) as error:
         for env in envs.values():
             env.close()
         raise ContestantError(f"cannot write the report into {str(out)!r}: {error}") from error
-    earlier_files = earlier_report_files(out)  # read now: a stop leaves them all in place
     staging = fresh_staging_folder(out)
     source = run_folder.Source.of_checkout()  # as it starts: edits while it runs do not count
     seeds = range(settings.seed, settings.seed + settings.episodes)

@@ -64,13 +64,30 @@ def earlier_report_files(out: Path) -> list[Path]:
         return []
     if not isinstance(earlier, dict) or not all(key in earlier for key in _REPORT_KEYS):
         return []
-    names = [*FIGURES, *_strings(earlier.get("figures") or {})]
-    for section in (earlier.get("environments") or {}).values():
-        for contestant in section.get("contestants", []):
-            name = slug(str(contestant.get("label", "")))
-            if name:
+    # Only the shapes a report writes: its pictures and videos, and per contestant a folder.
+    names = [*FIGURES]
+    names += [n for n in _strings(earlier.get("figures")) if n.endswith((".png", ".mp4"))]
+    try:
+        for section in earlier["environments"].values():
+            for contestant in section["contestants"]:
+                name = slug(str(contestant["label"]))
                 names += [f"{RECONSTRUCTIONS_FOLDER}/{name}", f"{VIDEOS_FOLDER}/{name}.mp4"]
-    return [out / name for name in dict.fromkeys(names) if _is_inside(out, name)]
+    except (AttributeError, KeyError, TypeError):
+        return []  # not a report this code wrote, whatever its keys
+    return [out / name for name in dict.fromkeys(names) if name and _is_inside(out, name)]
+
+
+def check_reconstruction_folders(out: Path, labels: Iterable[str], earlier: list[Path]) -> None:
+    """Refuse, before any episode, a contestant's reconstructions folder that exists but is
+    not the earlier report's: moving this report's into place would replace someone's."""
+    for label in labels:
+        folder = out / RECONSTRUCTIONS_FOLDER / slug(label)
+        if folder.exists() and folder not in earlier:
+            raise ReportFolderError(
+                f"{folder} exists and no earlier report in the folder wrote it: the report "
+                "writes its reconstructions of that contestant there; move it or choose "
+                "another --out"
+            )
 
 
 def fresh_staging_folder(out: Path) -> Path:
@@ -95,10 +112,8 @@ def replace_earlier_files(out: Path, earlier: Iterable[Path]) -> list[str]:
             problems.append(f"could not remove the earlier report's {path}: {error.strerror}")
     staging, final = out / STAGING_FOLDER, out / RECONSTRUCTIONS_FOLDER
     for staged in sorted(staging.iterdir()) if staging.is_dir() else []:
-        target = final / staged.name
+        target = final / staged.name  # checked free or the earlier report's, before it ran
         try:
-            if target.is_dir() and not target.is_symlink():
-                shutil.rmtree(target)  # the same contestant's: this report's name for it
             final.mkdir(exist_ok=True)
             os.replace(staged, target)
         except OSError as error:

@@ -826,7 +826,7 @@ def test_only_an_evaluate_report_json_marks_files_as_an_earlier_reports(tmp_path
     assert not any(".." in name for name in named)  # nothing outside the folder
 
 
-def test_a_report_folder_whose_videos_folder_is_a_link_is_refused_before_any_episode(tmp_path):
+def test_a_report_folder_holding_files_not_its_own_is_refused_before_any_episode(tmp_path):
     from agents.contestants import ContestantError
 
     elsewhere = tmp_path / "clips"
@@ -838,6 +838,14 @@ def test_a_report_folder_whose_videos_folder_is_a_link_is_refused_before_any_epi
     with pytest.raises(ContestantError, match="videos is a link"):
         four_view_report(out, seed=5)
     assert (elsewhere / "clip.mp4").read_text() == "mine"
+    # Nor is a reconstructions folder of the contestant's name that no report of ours wrote.
+    (out / "videos").unlink()
+    own = out / "reconstructions" / "four-view" / "my_scan.ply"
+    own.parent.mkdir(parents=True)
+    own.write_bytes(b"mine")
+    with pytest.raises(ContestantError, match="no earlier report in the folder wrote it"):
+        four_view_report(out, seed=5)
+    assert own.read_text() == "mine"
 
 
 def test_a_report_stopped_after_its_numbers_leaves_no_earlier_report_md(tmp_path, monkeypatch):
