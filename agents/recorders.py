@@ -7,6 +7,7 @@ A recorder sees the reset ``info`` (:meth:`begin`), every step's reward and ``in
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -87,9 +88,11 @@ class ViewPlanningRecorder:
 
 
 class GraspRecorder:
-    """Per episode: the instrument, success, the episode's peak fingertip force, control steps
-    over the force limit, whether the hard limit ended it, the highest lift, the time to first
-    reach the target lift while grasped (``None``: never), and the per-step peak pad force."""
+    """Per episode: the instrument and where it lay at the start (its grasp point's x, y and
+    its handle's yaw, so that pairing checks the pose too), success, the episode's peak
+    fingertip force, control steps over the force limit, whether the hard limit ended it, the
+    highest lift, the time to first reach the target lift while grasped (``None``: never), and
+    the per-step peak pad force."""
 
     def begin(self, env, info: dict) -> None:
         scene = env.unwrapped
@@ -104,6 +107,12 @@ class GraspRecorder:
         self.forces: list[float] = []
         self.lift = 0.0
         self.time_to_lift = None
+        world = scene.world
+        axis = world.grasp_axis()
+        self.start = {
+            "start_position": [round(float(v), 6) for v in world.grasp_point()[:2]],
+            "start_yaw": round(math.atan2(axis[1], axis[0]), 6),
+        }
 
     def step(self, env, reward: float, info: dict) -> None:
         self.forces.append(round(float(info["step_peak_force"]), TRACE_DIGITS))
@@ -118,6 +127,7 @@ class GraspRecorder:
     def end(self, env, index: int, seed: int) -> dict:
         return {
             "instrument": env.unwrapped.world.name,
+            **self.start,
             "max_lift": self.lift,
             "time_to_lift": self.time_to_lift,
             "force_trace": self.forces,

@@ -9,6 +9,7 @@ or instrument in the same pose, so comparisons are paired. The report checks it 
 from __future__ import annotations
 
 import datetime
+import hashlib
 import json
 import sys
 import time
@@ -240,6 +241,10 @@ def _describe(contestant: Contestant) -> dict:
         "env_kwargs": contestant.env_kwargs,
         "source": contestant.source,
         "model_file": contestant.model_file,
+        # A path names a file that a later training run may overwrite; the hash names its bytes.
+        "model_sha256": None
+        if contestant.model_file is None
+        else hashlib.sha256(Path(contestant.model_file).read_bytes()).hexdigest(),
         "training_seed": contestant.seed,
         "training_command": (config or {}).get("command"),
         "training_settings": _training_settings(config),
@@ -327,7 +332,9 @@ def _without(kwargs: dict, keys) -> dict:
 def _environment_section(env_id: str, results: list[dict]) -> dict:
     task = task_for(env_id)
     scene_keys = (
-        ("object", "scale", "position", "yaw") if env_id == "ViewPlanning-v0" else ("instrument",)
+        ("object", "scale", "position", "yaw")
+        if env_id == "ViewPlanning-v0"
+        else ("instrument", "start_position", "start_yaw")
     )
     scenes = [
         [tuple(map(str, (e.get(k) for k in scene_keys))) for e in r["episodes"]] for r in results

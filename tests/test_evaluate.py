@@ -5,6 +5,7 @@ a tiny SAC run trained here (with observation normalisation), for a few episodes
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import re
@@ -205,6 +206,9 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
     assert by_label["grasp_sac"]["env_kwargs"]["instrument_set"] == "train"
     assert by_label["grasp_sac"]["model_file"] == str(grasp_run / "best_model.zip")
     assert by_label["squeeze"]["model_file"] is None
+    scored = (grasp_run / "best_model.zip").read_bytes()
+    assert by_label["grasp_sac"]["model_sha256"] == hashlib.sha256(scored).hexdigest()
+    assert by_label["squeeze"]["model_sha256"] is None
     assert "grasp_sac** (trained, seed 0): `" in (out / "report.md").read_text()
     assert "(scored: `best_model.zip`)" in (out / "report.md").read_text()
     for contestant in section["contestants"]:
@@ -384,6 +388,27 @@ def test_no_probability_of_improvement_over_a_baseline_run_in_other_env_kwargs()
     assert four["runs"] == ["a0", "a1"] and "probability_of_improvement" in four
     assert six["runs"] == ["b0", "b1"] and "probability_of_improvement" not in six
     assert "four-view ran in other env kwargs" in six["no_improvement_because"]
+
+
+def test_grasp_episodes_pair_only_when_the_instrument_lay_in_the_same_pose():
+    """The instrument's name alone would call two episodes of the scissors paired wherever
+    each lay on the tray."""
+    from agents.report import _environment_section
+
+    def run(label, x):
+        episode = {"instrument": "scissors", "start_position": [x, 0.0], "start_yaw": 0.3}
+        return {
+            "label": label,
+            "group": label,
+            "kind": "baseline",
+            "env_kwargs": {},
+            "training_settings": None,
+            "training_seed": None,
+            "episodes": [{**episode, "is_success": True}],
+        }
+
+    assert _environment_section("InstrumentGrasp-v0", [run("a", 0.5), run("b", 0.5)])["paired"]
+    assert not _environment_section("InstrumentGrasp-v0", [run("a", 0.5), run("b", 0.51)])["paired"]
 
 
 # --- bad input --------------------------------------------------------------------------------

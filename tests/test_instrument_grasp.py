@@ -13,6 +13,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.grasp_baselines import Phase, PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
 from liuxing_envs.envs.instrument_grasp import (
+    DEFAULT_APPROACH_ALLOWANCE,
     DEFAULT_FORCE_LIMIT,
     FORCE_SAMPLE_SUBSTEPS,
     GRASP_FORCE_THRESHOLD,
@@ -31,6 +32,7 @@ REWARD_TERMS = (
     "reward_hold",
     "reward_force",
     "reward_impact",
+    "reward_approach",
     "reward_failure",
     "reward_success",
 )
@@ -645,6 +647,45 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
     assert 0.0 < max(peaks[-10:]) < DEFAULT_FORCE_LIMIT  # resting on the handle
 
 
+def test_the_approach_term_charges_a_fast_set_point_toward_the_instrument_before_the_touch():
+    """Closed jaws 2 cm over the handle, lowered 1 cm a step onto it: the term charges the
+    steps whose set-point carries a pad toward it within approach_distance, before any pad
+    touches; lowered 2 mm a step (within the allowance) the same way down is free, and touches
+    the handle more gently."""
+    penalty = 1000.0
+
+    def descend(speed, steps=30, **kwargs):
+        env = gym.make("InstrumentGrasp-v0", gripper_control="force", arm_stiffness=0.1, **kwargs)
+        env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.02]})
+        trace = []
+        for step in range(steps):
+            down = -speed if step >= 5 else 0.0  # once the jaws have closed
+            _, reward, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
+            trace.append((info["reward_approach"], info["step_peak_force"], reward, info))
+            if terminated:
+                break
+        return trace
+
+    fast = descend(0.5, approach_penalty=penalty)
+    charged = [i for i, (term, *_) in enumerate(fast) if term < 0.0]
+    assert charged and all(term <= 0.0 for term, *_ in fast)
+    first_touch = next(i for i, (_, force, *_) in enumerate(fast) if force > 0.0)
+    assert charged[0] < first_touch  # the warning comes before the contact
+    assert all(i >= 5 for i in charged)  # not while the jaws closed in place
+    # At most both pads carried the whole 1 cm step, less the 3 mm allowance.
+    assert min(term for term, *_ in fast) >= -penalty * 2 * (0.01 - DEFAULT_APPROACH_ALLOWANCE)
+    for *_, reward, info in fast:
+        assert reward == pytest.approx(sum(info[t] for t in REWARD_TERMS), abs=1e-9)
+    slow = descend(0.1, steps=45, approach_penalty=penalty)
+    assert all(term == 0.0 for term, *_ in slow)
+    slow_peak = max(force for _, force, *_ in slow)
+    assert 0.0 < slow_peak < max(force for _, force, *_ in fast)
+    # Off by default: the same fast descent, the same physics, no charge.
+    default = descend(0.5)
+    assert all(term == 0.0 for term, *_ in default)
+    assert [force for _, force, *_ in default] == [force for _, force, *_ in fast]
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -680,6 +721,8 @@ def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
         ({"max_gripper_delta": 0.5}, r"max_gripper_delta must be a number in \[0.0001, 0.08\]"),
         ({"max_grip_force": 50.0}, r"max_grip_force must be a number in \[0.1, 40.0\]"),
         ({"arm_stiffness": 0.0}, r"arm_stiffness must be a number in \[0.01, 1.0\]"),
+        ({"approach_penalty": -1.0}, r"approach_penalty must be a number in \[0.0, 100000.0\]"),
+        ({"approach_distance": 0.5}, r"approach_distance must be a number in \[0.0, 0.1\]"),
         # An array is not a choice: one element passed as it, more raised numpy's error.
         ({"controller": np.array(["ee_delta"])}, r"controller=array\(\['ee_delta'\].* choose"),
         ({"obs_mode": np.array(["state", "depth"])}, r"obs_mode=array.* choose one of"),

@@ -69,6 +69,19 @@ DEFAULT_REACH_SHARPNESS = 10.0
 DEFAULT_FORCE_PENALTY = 0.2  # reward per newton above the limit, per pad
 DEFAULT_IMPACT_PENALTY = 0.05  # reward per newton above the impact limit
 DEFAULT_FAILURE_PENALTY = 5.0
+#: Reward per metre the arm's set-point moves a pad toward the instrument, beyond
+#: ``approach_allowance``, when the pad is within ``approach_distance`` of it (0: off). The
+#: hard-limit stops of trained policies come from a pad landing on the instrument while the
+#: set-point runs a full ``max_translation`` ahead (a compliant servo presses with about its
+#: stiffness times that lead): the force passes the hard limit within 2 ms of the first
+#: touch, too fast for the force terms to warn the policy. This term charges the command
+#: before the contact.
+DEFAULT_APPROACH_PENALTY = 0.0
+DEFAULT_APPROACH_DISTANCE = 0.015  # m, pad to instrument
+DEFAULT_APPROACH_ALLOWANCE = 0.003  # m of set-point move per control step
+#: Closer than this (m) the direction from pad to instrument is left to the contact forces:
+#: it is not defined at a touch.
+APPROACH_MIN_GAP = 0.0005
 #: The most the reach, grasp, lift and hold terms pay in one step.
 MAX_STEP_REWARD = 5.0
 #: Largest joint set-point change (rad) an ee_delta step may ask for. A step's own moves need
@@ -76,7 +89,7 @@ MAX_STEP_REWARD = 5.0
 MAX_SETPOINT_JUMP = 1.0
 REWARD_TERMS = (
     "reward_reach", "reward_grasp", "reward_lift", "reward_hold",
-    "reward_force", "reward_impact", "reward_failure", "reward_success",
+    "reward_force", "reward_impact", "reward_approach", "reward_failure", "reward_success",
 )  # fmt: skip
 DEFAULT_MAX_TRANSLATION = 0.02  # m per control step at |action| = 1
 DEFAULT_MAX_YAW = 0.2  # rad per control step
@@ -276,6 +289,13 @@ class InstrumentGraspEnv(gym.Env):
     - ``reward_impact`` = -``impact_penalty`` max(0, peak impact - ``impact_limit``), the
       impact being the net contact force on the instrument from anything but the pads, less
       its weight;
+    - ``reward_approach`` = -``approach_penalty`` sum_pads max(0, m - ``approach_allowance``)
+      for each pad between 0.5 mm and ``approach_distance`` of the instrument, m being how far
+      the arm's new set-point would carry the pad toward the instrument's nearest point (m;
+      the set-point's forward kinematics with the fingers as open as now, so the jaws' own
+      closing does not count). Off by default (0); it warns a policy before a strike, which
+      the force terms cannot: a compliant arm whose set-point runs a centimetre ahead passes
+      the hard limit within 2 ms of the first touch (``docs/training_notes.md``);
     - ``reward_failure`` = -``failure_penalty`` when a pad force exceeds
       ``hard_limit_factor`` x ``force_limit``, or the impact exceeds ``hard_limit_factor`` x
       ``impact_limit``: a protective stop holds the arm and fingers, and the episode ends
@@ -337,7 +357,8 @@ class InstrumentGraspEnv(gym.Env):
     ``instruments=None``, ``control_hz=20.0``, ``timestep=0.002``, ``force_limit=5.0``,
     ``hard_limit_factor=3.0``, ``impact_limit=10.0``, ``target_height=0.1``,
     ``hold_time=1.0``, ``reach_sharpness=10.0``, ``force_penalty=0.2``,
-    ``impact_penalty=0.05``, ``failure_penalty=5.0``, ``terminate_on_success=False``,
+    ``impact_penalty=0.05``, ``failure_penalty=5.0``, ``approach_penalty=0.0``,
+    ``approach_distance=0.015``, ``approach_allowance=0.003``, ``terminate_on_success=False``,
     ``max_translation=0.02``, ``max_yaw=0.2``, ``max_joint_delta=0.05``,
     ``max_gripper_delta=0.004``, ``max_grip_force=20.0``, ``arm_stiffness=1.0``,
     ``servo_damping_ratio=None``, ``mass_range=None``, ``friction_range=None``, ``resolution=64``,
@@ -367,7 +388,10 @@ class InstrumentGraspEnv(gym.Env):
     made an OpenGL context (an async vector env made after a render), OpenGL hung; it is now
     refused by name (``obs_mode="rgbd"``, ``render_mode``, ``depth_backend="gl"``) and
     ``"auto"`` falls back to ray casting. Added within v0 (2026-11-27; the default keeps the
-    model's damping, so default episodes are unchanged): ``servo_damping_ratio``.
+    model's damping, so default episodes are unchanged): ``servo_damping_ratio``. Added
+    within v0 (2026-11-28; off by default, so default rewards are unchanged):
+    ``approach_penalty``, ``approach_distance``, ``approach_allowance`` and the
+    ``reward_approach`` term (0 unless the penalty is set).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -391,6 +415,9 @@ class InstrumentGraspEnv(gym.Env):
         force_penalty: float = DEFAULT_FORCE_PENALTY,
         impact_penalty: float = DEFAULT_IMPACT_PENALTY,
         failure_penalty: float = DEFAULT_FAILURE_PENALTY,
+        approach_penalty: float = DEFAULT_APPROACH_PENALTY,
+        approach_distance: float = DEFAULT_APPROACH_DISTANCE,
+        approach_allowance: float = DEFAULT_APPROACH_ALLOWANCE,
         terminate_on_success: bool = False,
         max_translation: float = DEFAULT_MAX_TRANSLATION,
         max_yaw: float = DEFAULT_MAX_YAW,
@@ -439,6 +466,9 @@ class InstrumentGraspEnv(gym.Env):
             ("force_penalty", force_penalty, 0.0, 100.0),
             ("impact_penalty", impact_penalty, 0.0, 100.0),
             ("failure_penalty", failure_penalty, 0.0, 1000.0),
+            ("approach_penalty", approach_penalty, 0.0, 1e5),
+            ("approach_distance", approach_distance, 0.0, 0.1),
+            ("approach_allowance", approach_allowance, 0.0, 0.1),
             ("max_translation", max_translation, 1e-4, 0.1),
             ("max_yaw", max_yaw, 0.0, 1.0),
             ("max_joint_delta", max_joint_delta, 1e-4, 0.5),
@@ -497,6 +527,8 @@ class InstrumentGraspEnv(gym.Env):
         self.reach_sharpness = float(reach_sharpness)
         self.force_penalty, self.impact_penalty = force_penalty, impact_penalty
         self.failure_penalty = failure_penalty
+        self.approach_penalty, self.approach_allowance = approach_penalty, approach_allowance
+        self.approach_distance = approach_distance
         self.terminate_on_success = bool(terminate_on_success)
         self.max_translation, self.max_yaw = max_translation, max_yaw
         self.max_joint_delta = max_joint_delta
@@ -616,6 +648,14 @@ class InstrumentGraspEnv(gym.Env):
         action = np.clip(as_action(action, self.action_space.shape), -1.0, 1.0)
         world = self.world
         self._apply_arm_action(action[:-1])
+        approach = (
+            sum(
+                max(0.0, move - self.approach_allowance)
+                for move in world.pad_approaches(self.approach_distance)
+            )
+            if self.approach_penalty
+            else 0.0
+        )
         if self.gripper_control == "delta":
             world.gripper.command(
                 world.gripper.commanded_opening() + self.max_gripper_delta * action[-1]
@@ -680,6 +720,7 @@ class InstrumentGraspEnv(gym.Env):
             "reward_force": -self.force_penalty
             * (max(peak_left - self.force_limit, 0.0) + max(peak_right - self.force_limit, 0.0)),
             "reward_impact": -self.impact_penalty * max(0.0, impact_peak - self.impact_limit),
+            "reward_approach": -self.approach_penalty * approach,
             "reward_failure": -self.failure_penalty if broke_limit else 0.0,
             # Ending early must not pay less than holding on until the time limit would.
             "reward_success": MAX_STEP_REWARD * max(0, self.episode_steps - self._steps)
@@ -951,6 +992,7 @@ class _World:
         self._grasp_site = model.site(self.PREFIX + "grasp").id
         self._tcp_site = model.site(TCP_SITE).id
         self._geoms = np.flatnonzero(model.geom_bodyid == self.body)
+        self._fromto = np.zeros(6)
         self._nominal_mass = model.body_mass[self.body]
         self._nominal_inertia = model.body_inertia[self.body].copy()
         self._friction_geoms = self._friction_partners()
@@ -1153,6 +1195,28 @@ class _World:
     def asleep(self) -> bool:
         """Whether the instrument is asleep: at rest and touched by nothing awake."""
         return bool(self.data.tree_asleep[self._tree] >= 0)
+
+    def pad_approaches(self, distance: float) -> list[float]:
+        """How far (m) the arm's set-point would move each pad toward the instrument, for the
+        pads between APPROACH_MIN_GAP and ``distance`` of it: the pad at the set-point's pose
+        (fingers as open as now) less where it is, along the line to the nearest instrument
+        geom. The fingers' own closing is not counted (its force is capped)."""
+        model, data, scratch = self.model, self.data, self._kinematics
+        scratch.qpos[:] = data.qpos
+        scratch.qpos[self.arm.qpos_indices] = self.arm_ctrl()
+        mujoco.mj_kinematics(model, scratch)
+        approaches = []
+        for pad in self.gripper.pad_geoms:
+            nearest, toward = distance, None
+            for geom in self._geoms:
+                gap = mujoco.mj_geomDistance(model, data, pad, geom, nearest, self._fromto)
+                if gap < nearest:
+                    nearest = gap
+                    toward = (self._fromto[3:] - self._fromto[:3]) / gap if gap > 0 else None
+            if toward is not None and nearest >= APPROACH_MIN_GAP:
+                move = scratch.geom_xpos[pad] - data.geom_xpos[pad]
+                approaches.append(float(move @ toward))
+        return approaches
 
     def impact_force(self) -> float:
         """Contact force (N) on the instrument from anything but the pads, less its weight."""
