@@ -1169,14 +1169,20 @@ class _World:
     def wrist_camera_pose(self, arm_qpos) -> tuple[np.ndarray, np.ndarray]:
         """Wrist camera position and rotation (columns = camera axes) for arm joint angles,
         by forward kinematics in a scratch copy (the hand-eye calibration a robot has)."""
-        scratch = self._kinematics
-        scratch.qpos[:] = self.data.qpos
-        scratch.qpos[self.arm.qpos_indices] = arm_qpos
-        mujoco.mj_kinematics(self.model, scratch)
+        scratch = self._posed(arm_qpos)
         mujoco.mj_camlight(self.model, scratch)
         return scratch.cam_xpos[self._camera_id].copy(), scratch.cam_xmat[self._camera_id].reshape(
             3, 3
         ).copy()
+
+    def _posed(self, arm_qpos) -> mujoco.MjData:
+        """The scratch data with the arm at ``arm_qpos`` and the rest as now, its kinematics
+        computed; the simulation itself is left alone."""
+        scratch = self._kinematics
+        scratch.qpos[:] = self.data.qpos
+        scratch.qpos[self.arm.qpos_indices] = arm_qpos
+        mujoco.mj_kinematics(self.model, scratch)
+        return scratch
 
     def grasp_point(self) -> np.ndarray:
         return self.data.site_xpos[self._grasp_site].copy()
@@ -1201,10 +1207,8 @@ class _World:
         pads between APPROACH_MIN_GAP and ``distance`` of it: the pad at the set-point's pose
         (fingers as open as now) less where it is, along the line to the nearest instrument
         geom. The fingers' own closing is not counted (its force is capped)."""
-        model, data, scratch = self.model, self.data, self._kinematics
-        scratch.qpos[:] = data.qpos
-        scratch.qpos[self.arm.qpos_indices] = self.arm_ctrl()
-        mujoco.mj_kinematics(model, scratch)
+        model, data = self.model, self.data
+        scratch = self._posed(self.arm_ctrl())
         approaches = []
         for pad in self.gripper.pad_geoms:
             nearest, toward = distance, None
