@@ -686,6 +686,45 @@ def test_the_approach_term_charges_a_fast_set_point_toward_the_instrument_before
     assert [force for _, force, *_ in default] == [force for _, force, *_ in fast]
 
 
+def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
+    """Closed jaws 5 cm over the handle, lowered 1 cm a step: with a lead limit of 3 mm the
+    set-point never runs further than that ahead of a pad near the instrument (the approach
+    term, charging beyond 3.3 mm, stays 0), the descent keeps its speed until a pad is within
+    approach_distance, and it lands on the handle later and with less force."""
+
+    def descend(**kwargs):
+        env = gym.make(
+            "InstrumentGrasp-v0",
+            gripper_control="force",
+            arm_stiffness=0.1,
+            approach_penalty=1000.0,
+            approach_allowance=0.0033,
+            **kwargs,
+        )
+        env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.05]})
+        trace = []
+        for step in range(45):
+            down = -0.5 if step >= 5 else 0.0  # once the jaws have closed
+            _, _, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
+            tcp_z = env.unwrapped.world.tcp_position()[2]
+            trace.append((info["reward_approach"], info["step_peak_force"], tcp_z))
+            assert not terminated
+        return trace
+
+    free, guarded = descend(), descend(approach_lead_limit=0.003)
+    assert any(term < 0.0 for term, *_ in free)
+    assert all(term == 0.0 for term, *_ in guarded)
+    slowed = next(i for i, (*_, z) in enumerate(guarded) if z != free[i][2])
+    assert slowed >= 8  # full speed from 5 cm down to about the approach distance
+    first_touch = {
+        name: next(i for i, (_, force, _) in enumerate(trace) if force > 0.0)
+        for name, trace in (("free", free), ("guarded", guarded))
+    }
+    assert first_touch["guarded"] > first_touch["free"]
+    landing = max(force for _, force, _ in guarded[: first_touch["guarded"] + 3])
+    assert 0.0 < landing < 0.75 * max(force for _, force, _ in free)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -723,6 +762,11 @@ def test_the_approach_term_charges_a_fast_set_point_toward_the_instrument_before
         ({"arm_stiffness": 0.0}, r"arm_stiffness must be a number in \[0.01, 1.0\]"),
         ({"approach_penalty": -1.0}, r"approach_penalty must be a number in \[0.0, 100000.0\]"),
         ({"approach_distance": 0.5}, r"approach_distance must be a number in \[0.0, 0.1\]"),
+        ({"approach_lead_limit": -0.001}, r"approach_lead_limit must be a number in \[0.0, 0.1\]"),
+        (
+            {"approach_lead_limit": 0.06, "controller": "joint_delta"},
+            "approach_lead_limit slows ee_delta steps; with controller='joint_delta' it must",
+        ),
         # An array is not a choice: one element passed as it, more raised numpy's error.
         ({"controller": np.array(["ee_delta"])}, r"controller=array\(\['ee_delta'\].* choose"),
         ({"obs_mode": np.array(["state", "depth"])}, r"obs_mode=array.* choose one of"),

@@ -79,9 +79,19 @@ DEFAULT_FAILURE_PENALTY = 5.0
 DEFAULT_APPROACH_PENALTY = 0.0
 DEFAULT_APPROACH_DISTANCE = 0.015  # m, pad to instrument
 DEFAULT_APPROACH_ALLOWANCE = 0.003  # m of set-point move per control step
+#: With ``controller="ee_delta"``: how far (m) the arm's set-point may run ahead of a pad toward
+#: the instrument while the pad is within ``approach_distance`` of it (None: no limit). A
+#: step asking for more is slowed as a whole, translation and yaw by one factor, as a cobot's
+#: speed and separation monitoring slows it near an obstacle: a guarded approach. A servo
+#: presses with about its stiffness times its lead when the pad lands, so this bounds the
+#: strike that the force terms cannot see coming.
+DEFAULT_APPROACH_LEAD_LIMIT = None
 #: Closer than this (m) the direction from pad to instrument is left to the contact forces:
 #: it is not defined at a touch.
 APPROACH_MIN_GAP = 0.0005
+#: The approach lead limit guards pads down to this gap (m); a pad touching the instrument is
+#: left to the grip (its lead across the handle is what squeezes it).
+GUARD_MIN_GAP = 1e-5
 #: The most the reach, grasp, lift and hold terms pay in one step.
 MAX_STEP_REWARD = 5.0
 #: Largest joint set-point change (rad) an ee_delta step may ask for. A step's own moves need
@@ -418,6 +428,7 @@ class InstrumentGraspEnv(gym.Env):
         approach_penalty: float = DEFAULT_APPROACH_PENALTY,
         approach_distance: float = DEFAULT_APPROACH_DISTANCE,
         approach_allowance: float = DEFAULT_APPROACH_ALLOWANCE,
+        approach_lead_limit: float | None = DEFAULT_APPROACH_LEAD_LIMIT,
         terminate_on_success: bool = False,
         max_translation: float = DEFAULT_MAX_TRANSLATION,
         max_yaw: float = DEFAULT_MAX_YAW,
@@ -479,6 +490,13 @@ class InstrumentGraspEnv(gym.Env):
             require_number(name, value, low, high)
         if servo_damping_ratio is not None:
             require_number("servo_damping_ratio", servo_damping_ratio, 0.1, 10.0)
+        if approach_lead_limit is not None:
+            require_number("approach_lead_limit", approach_lead_limit, 0.0, 0.1)
+            if controller != "ee_delta":
+                raise ValueError(
+                    "approach_lead_limit slows ee_delta steps; with controller='joint_delta' "
+                    "it must be None"
+                )
         require_int("resolution", resolution, 8, 512)
         require_int("episode_steps", episode_steps, 1, 100_000)
         self.episode_steps = episode_steps
@@ -529,6 +547,9 @@ class InstrumentGraspEnv(gym.Env):
         self.failure_penalty = failure_penalty
         self.approach_penalty, self.approach_allowance = approach_penalty, approach_allowance
         self.approach_distance = approach_distance
+        self.approach_lead_limit = (
+            None if approach_lead_limit is None else float(approach_lead_limit)
+        )
         self.terminate_on_success = bool(terminate_on_success)
         self.max_translation, self.max_yaw = max_translation, max_yaw
         self.max_joint_delta = max_joint_delta
@@ -855,22 +876,60 @@ class InstrumentGraspEnv(gym.Env):
             ctrl = world.arm_ctrl() + self.max_joint_delta * arm_action
             world.set_arm_ctrl(np.clip(ctrl, world.arm.lower, world.arm.upper))
             return
+        qpos = self._ee_set_point(arm_action)
+        if qpos is not None and self.approach_lead_limit is not None:
+            qpos = self._guard_approach(arm_action, qpos)
+        if qpos is not None:
+            world.set_arm_ctrl(qpos)
+
+    def _guard_approach(self, arm_action: np.ndarray, qpos: np.ndarray) -> np.ndarray | None:
+        """``qpos``, the set-point of ``arm_action``, or where it runs more than
+        ``approach_lead_limit`` ahead of a pad near the instrument, the set-point of the same
+        move shortened until it does not (to nothing: hold the pose)."""
+        world, limit = self.world, self.approach_lead_limit
+        near = world.approach_directions(self.approach_distance, min_gap=GUARD_MIN_GAP)
+        leads = world.pad_leads(near, qpos)
+        if max(leads, default=0.0) <= limit:
+            return qpos
+        held = self._ee_set_point(arm_action, scale=0.0)
+        if held is None:
+            return None
+        # Holding still leads a little (the set-point points the tool straight down, the
+        # compliant arm tilts). A translation moves the pads rigidly, so each lead is linear in
+        # the move's scale between the two; the yaw bends that only slightly.
+        scale = 1.0
+        for lead, held_lead in zip(leads, world.pad_leads(near, held), strict=True):
+            if lead > limit:
+                gain = lead - held_lead
+                scale = min(scale, (limit - held_lead) / gain if gain > 0.0 else 0.0)
+        return self._ee_set_point(arm_action, scale) if scale > 0.0 else held
+
+    def _ee_set_point(self, arm_action: np.ndarray, scale: float = 1.0) -> np.ndarray | None:
+        """The arm joint set-point an ``ee_delta`` action asks for, its move (after the
+        workspace clip) times ``scale``, or None where it is refused."""
+        world = self.world
         # Displacements are from the actual pose (not the last target), so a zero action holds
         # the arm where it is and pushing against the tray cannot wind its servos up.
+        tcp = world.tcp_position()
         target = np.clip(
-            world.tcp_position() + self.max_translation * arm_action[:3],
+            tcp + self.max_translation * arm_action[:3],
             world.workspace_lower,
             world.workspace_upper,
         )
-        yaw = world.tcp_yaw() + self.max_yaw * arm_action[3]
+        yaw_change = self.max_yaw * arm_action[3]
+        if scale != 1.0:
+            target = tcp + scale * (target - tcp)
+            yaw_change *= scale
+        yaw = world.tcp_yaw() + yaw_change
         yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
         reference = world.arm_ctrl()
         qpos = world.arm.closed_form_nearest(target, tool_down(yaw), reference, site=TCP_SITE)
         # Near a joint limit the nearest solution can be another arm configuration (elbow or
         # wrist flipped), which a servo would swing to across the workspace: refused, as an
         # unreachable target is.
-        if qpos is not None and np.abs(qpos - reference).max() <= MAX_SETPOINT_JUMP:
-            world.set_arm_ctrl(qpos)
+        if qpos is None or np.abs(qpos - reference).max() > MAX_SETPOINT_JUMP:
+            return None
+        return qpos
 
     def _observation(self) -> dict:
         world, gripper = self.world, self.world.gripper
@@ -1204,12 +1263,16 @@ class _World:
 
     def pad_approaches(self, distance: float) -> list[float]:
         """How far (m) the arm's set-point would move each pad toward the instrument, for the
-        pads between APPROACH_MIN_GAP and ``distance`` of it: the pad at the set-point's pose
-        (fingers as open as now) less where it is, along the line to the nearest instrument
-        geom. The fingers' own closing is not counted (its force is capped)."""
+        pads between APPROACH_MIN_GAP and ``distance`` of it (see :meth:`pad_leads`)."""
+        return self.pad_leads(self.approach_directions(distance), self.arm_ctrl())
+
+    def approach_directions(
+        self, distance: float, min_gap: float = APPROACH_MIN_GAP
+    ) -> list[tuple[int, np.ndarray]]:
+        """(pad geom, unit vector from it to the instrument's nearest point) for each pad
+        between ``min_gap`` and ``distance`` (m) of the instrument."""
         model, data = self.model, self.data
-        scratch = self._posed(self.arm_ctrl())
-        approaches = []
+        near = []
         for pad in self.gripper.pad_geoms:
             nearest, toward = distance, None
             for geom in self._geoms:
@@ -1217,10 +1280,19 @@ class _World:
                 if gap < nearest:
                     nearest = gap
                     toward = (self._fromto[3:] - self._fromto[:3]) / gap if gap > 0 else None
-            if toward is not None and nearest >= APPROACH_MIN_GAP:
-                move = scratch.geom_xpos[pad] - data.geom_xpos[pad]
-                approaches.append(float(move @ toward))
-        return approaches
+            if toward is not None and nearest >= min_gap:
+                near.append((pad, toward))
+        return near
+
+    def pad_leads(self, near, arm_set_point) -> list[float]:
+        """How far (m) the arm at ``arm_set_point`` would carry each of the ``near`` pads
+        (from :meth:`approach_directions`) along its direction: the pad at the set-point's
+        pose (fingers as open as now) less where it is. The fingers' own closing is not
+        counted (its force is capped)."""
+        if not near:
+            return []
+        data, scratch = self.data, self._posed(arm_set_point)
+        return [float((scratch.geom_xpos[pad] - data.geom_xpos[pad]) @ toward) for pad, toward in near]
 
     def impact_force(self) -> float:
         """Contact force (N) on the instrument from anything but the pads, less its weight."""
