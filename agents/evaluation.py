@@ -240,7 +240,8 @@ def _scalar(value):
 
 def summarize(episodes: list[dict], metric: str) -> dict:
     """Mean and 95% CI of ``metric`` (Wilson for yes/no figures, bootstrap otherwise), plus
-    the mean return and the mean of every other recorded figure."""
+    the mean return and the mean of every other recorded number but the seed and the
+    angles."""
     values = [episode[metric] for episode in episodes]
     binary = all(isinstance(value, bool) for value in values)
     mean = float(np.mean(values))
@@ -257,7 +258,8 @@ def summarize(episodes: list[dict], metric: str) -> dict:
     }
     for key in episodes[0]:
         values = [episode.get(key) for episode in episodes]
-        if key in ("seed", "return", "length", metric) or not all(
+        # An angle's arithmetic mean means nothing (pi and -pi average to 0).
+        if key in ("seed", "return", "length", "yaw", "start_yaw", metric) or not all(
             isinstance(value, numbers.Real) for value in values
         ):
             continue

@@ -163,6 +163,7 @@ def test_view_planning_report_is_paired_and_its_numbers_are_sound(tmp_path):
     for contestant in section["contestants"]:
         summary = contestant["summary"]
         assert 0.0 <= summary["mean"] <= 1.0
+        assert "mean_yaw" not in summary  # the object's yaw, an angle: no mean
         assert_ci_holds_mean(summary)
         for episode in contestant["episodes"]:
             curve = episode["coverage_after_view"]
@@ -214,6 +215,8 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
     for contestant in section["contestants"]:
         summary = contestant["summary"]
         assert_ci_holds_mean(summary["success"], "rate")
+        # The start's yaw pairs episodes; an angle's arithmetic mean is no figure.
+        assert "mean_start_yaw" not in summary and "mean_max_lift" in summary
         for episode in contestant["episodes"]:
             assert len(episode["force_trace"]) == episode["length"]
             assert episode["peak_force"] == pytest.approx(max(episode["force_trace"]), abs=1e-3)

@@ -689,8 +689,9 @@ def test_the_approach_term_charges_a_fast_set_point_toward_the_instrument_before
 def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
     """Closed jaws 5 cm over the handle, lowered 1 cm a step: with a lead limit of 3 mm the
     set-point never runs further than that ahead of a pad near the instrument (the approach
-    term, charging beyond 3.3 mm, stays 0), the descent keeps its speed until a pad is within
-    approach_distance, and it lands on the handle later and with less force."""
+    term, charging beyond 3.01 mm, stays 0), turning or not; the descent keeps its speed
+    until the first step that would lead further, and it lands on the handle later and with
+    less force."""
 
     def descend(**kwargs):
         env = gym.make(
@@ -698,7 +699,7 @@ def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
             gripper_control="force",
             arm_stiffness=0.1,
             approach_penalty=1000.0,
-            approach_allowance=0.0033,
+            approach_allowance=0.00301,
             **kwargs,
         )
         env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.05]})
@@ -708,21 +709,45 @@ def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
             _, _, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
             tcp_z = env.unwrapped.world.tcp_position()[2]
             trace.append((info["reward_approach"], info["step_peak_force"], tcp_z))
-            assert not terminated
+            if terminated:
+                break
         return trace
 
     free, guarded = descend(), descend(approach_lead_limit=0.003)
-    assert any(term < 0.0 for term, *_ in free)
+    assert len(free) == len(guarded) == 45  # neither stopped
+    first_charge = next(i for i, (term, *_) in enumerate(free) if term < 0.0)
+    assert first_charge >= 8  # from 5 cm down, well after the jaws closed
     assert all(term == 0.0 for term, *_ in guarded)
     slowed = next(i for i, (*_, z) in enumerate(guarded) if z != free[i][2])
-    assert slowed >= 8  # full speed from 5 cm down to about the approach distance
-    first_touch = {
+    assert slowed == first_charge  # full speed until then
+    touch = {
         name: next(i for i, (_, force, _) in enumerate(trace) if force > 0.0)
         for name, trace in (("free", free), ("guarded", guarded))
     }
-    assert first_touch["guarded"] > first_touch["free"]
-    landing = max(force for _, force, _ in guarded[: first_touch["guarded"] + 3])
-    assert 0.0 < landing < 0.75 * max(force for _, force, _ in free)
+    assert touch["guarded"] > touch["free"]
+
+    def landing(trace, start):
+        return max(force for _, force, _ in trace[start : start + 3])
+
+    assert 0.0 < landing(guarded, touch["guarded"]) < 0.75 * landing(free, touch["free"])
+
+    def sweep(**kwargs):
+        env = gym.make(
+            "InstrumentGrasp-v0",
+            arm_stiffness=0.3,
+            approach_distance=0.03,
+            approach_penalty=1000.0,
+            approach_allowance=0.00301,
+            **kwargs,
+        )
+        env.reset(seed=2, options={"tool_start": [0.0, 0.0, 0.02]})
+        action = np.array([0.3, 0.0, -0.4, -1.0, 1.0], np.float32)
+        return [env.step(action)[4]["reward_approach"] for _ in range(25)]
+
+    # Open jaws turning as they move swing the pads, so a lead is no longer linear in the
+    # step's scale (a first, linear guess left one 0.12 mm over): still kept.
+    assert min(sweep()) < 0.0
+    assert all(term == 0.0 for term in sweep(approach_lead_limit=0.003))
 
 
 @pytest.mark.parametrize(
