@@ -80,7 +80,8 @@ DEFAULT_APPROACH_PENALTY = 0.0
 DEFAULT_APPROACH_DISTANCE = 0.015  # m, pad to instrument
 DEFAULT_APPROACH_ALLOWANCE = 0.003  # m of set-point move per control step
 #: With ``controller="ee_delta"``: how far (m) the arm's set-point may run ahead of a pad toward
-#: the instrument while the pad is within ``approach_distance`` of it (None: no limit). A
+#: the instrument while the pad is between GUARD_MIN_GAP and ``approach_distance`` of it (None:
+#: no limit). A
 #: step asking for more is slowed as a whole, translation and yaw by one factor, as a cobot's
 #: speed and separation monitoring slows it near an obstacle: a guarded approach. A servo
 #: presses with about its stiffness times its lead when the pad lands, so this bounds that
@@ -256,11 +257,13 @@ class InstrumentGraspEnv(gym.Env):
     nearest point (the set-point's forward kinematics, fingers as open as now) may not exceed
     the limit. A step asking for more is shortened, translation and yaw by one factor (to
     holding the pose where even that leads too far), as a cobot's speed and separation
-    monitoring slows it near an obstacle. That bounds the servo's push when the pad lands
-    (about its stiffness times the lead), not the arm's momentum, and a pad already touching
-    is not guarded (its lead across the handle is what grips). Closed jaws lowered 1 cm a step
-    onto a handle (``arm_stiffness=0.1``) land with 7.2 N at a limit of 3 mm against 12.9 N
-    unguarded, the last 1.5 cm at about 1 mm a step instead of 2.9.
+    monitoring slows it near an obstacle; a step that leads less than holding would is let
+    through, and where IK refuses the held pose the set-point stays where it was. That bounds
+    the servo's push when the pad lands (about its stiffness times the lead), not the arm's
+    momentum, and a pad already touching is not guarded (its lead across the handle is what
+    grips). Closed jaws lowered 1 cm a step onto a handle (``arm_stiffness=0.1``) land with
+    7.2 N at a limit of 3 mm against 12.9 N unguarded, the tool descending the last 1.5 cm
+    at about 1 mm a step instead of 2.9 mm.
 
     An ``ee_delta`` action moves the set-point, from where the tool is: the tool follows
     within the step only as far as the servos take it, and not exactly along the action's
