@@ -81,11 +81,10 @@ DEFAULT_APPROACH_DISTANCE = 0.015  # m, pad to instrument
 DEFAULT_APPROACH_ALLOWANCE = 0.003  # m of set-point move per control step
 #: With ``controller="ee_delta"``: how far (m) the arm's set-point may run ahead of a pad toward
 #: the instrument while the pad is between GUARD_MIN_GAP and ``approach_distance`` of it (None:
-#: no limit). A
-#: step asking for more is slowed as a whole, translation and yaw by one factor, as a cobot's
-#: speed and separation monitoring slows it near an obstacle: a guarded approach. A servo
-#: presses with about its stiffness times its lead when the pad lands, so this bounds that
-#: push (not the arm's momentum), which the force terms cannot see coming.
+#: no limit). A step asking for more is slowed as a whole, translation and yaw by one factor,
+#: as a cobot's speed and separation monitoring slows it near an obstacle: a guarded approach.
+#: A servo presses with about its stiffness times its lead when the pad lands, so this bounds
+#: that push (not the arm's momentum), which the force terms cannot see coming.
 DEFAULT_APPROACH_LEAD_LIMIT = None
 #: Closer than this (m) the direction from pad to instrument is left to the contact forces:
 #: it is not defined at a touch.
