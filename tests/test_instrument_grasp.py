@@ -625,21 +625,32 @@ def test_a_tool_start_into_the_instrument_is_raised_until_the_gripper_touches_no
     assert not terminated and info["step_peak_force"] == 0.0
 
 
+def lower_closed_jaws(speed, steps, start_height=0.02, arm_stiffness=0.1, **kwargs):
+    """Force-gripper jaws started open ``start_height`` (m) over the handle (seed 0), closed
+    for five steps, then lowered ``speed`` x max_translation a step (0.5: 1 cm): (reward,
+    info, tool-centre height) of each step, up to ``steps`` or a protective stop."""
+    env = gym.make(
+        "InstrumentGrasp-v0", gripper_control="force", arm_stiffness=arm_stiffness, **kwargs
+    )
+    env.reset(seed=0, options={"tool_start": [0.0, 0.0, start_height]})
+    trace = []
+    for step in range(steps):
+        down = -speed if step >= 5 else 0.0  # once the jaws have closed
+        _, reward, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
+        trace.append((reward, info, env.unwrapped.world.tcp_position()[2]))
+        if terminated:
+            break
+    return trace
+
+
 def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
     """The same push of closed jaws down onto the handle: the stiff arm trips the protective
     stop, the compliant one (arm_stiffness=0.1) settles on it with a few newtons."""
     outcomes = {}
     for stiffness in (1.0, 0.1):
-        env = gym.make("InstrumentGrasp-v0", gripper_control="force", arm_stiffness=stiffness)
-        env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.02]})
-        peaks = []
-        for step in range(25):
-            down = -0.5 if step >= 5 else 0.0  # 1 cm per step, once the jaws have closed
-            _, _, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
-            peaks.append(info["step_peak_force"])
-            if terminated:
-                break
-        outcomes[stiffness] = (info["hard_limit_exceeded"], peaks)
+        trace = lower_closed_jaws(0.5, 25, arm_stiffness=stiffness)
+        peaks = [info["step_peak_force"] for _, info, _ in trace]
+        outcomes[stiffness] = (trace[-1][1]["hard_limit_exceeded"], peaks)
     stopped, peaks = outcomes[1.0]
     assert stopped and peaks[-1] > 3 * DEFAULT_FORCE_LIMIT
     stopped, peaks = outcomes[0.1]
@@ -655,16 +666,10 @@ def test_the_approach_term_charges_a_fast_set_point_toward_the_instrument_before
     penalty = 1000.0
 
     def descend(speed, steps=30, **kwargs):
-        env = gym.make("InstrumentGrasp-v0", gripper_control="force", arm_stiffness=0.1, **kwargs)
-        env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.02]})
-        trace = []
-        for step in range(steps):
-            down = -speed if step >= 5 else 0.0  # once the jaws have closed
-            _, reward, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
-            trace.append((info["reward_approach"], info["step_peak_force"], reward, info))
-            if terminated:
-                break
-        return trace
+        return [
+            (info["reward_approach"], info["step_peak_force"], reward, info)
+            for reward, info, _ in lower_closed_jaws(speed, steps, **kwargs)
+        ]
 
     fast = descend(0.5, approach_penalty=penalty)
     charged = [i for i, (term, *_) in enumerate(fast) if term < 0.0]
@@ -694,24 +699,15 @@ def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
     less force."""
 
     def descend(**kwargs):
-        env = gym.make(
-            "InstrumentGrasp-v0",
-            gripper_control="force",
-            arm_stiffness=0.1,
+        trace = lower_closed_jaws(
+            0.5,
+            45,
+            start_height=0.05,
             approach_penalty=1000.0,
             approach_allowance=0.00301,
             **kwargs,
         )
-        env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.05]})
-        trace = []
-        for step in range(45):
-            down = -0.5 if step >= 5 else 0.0  # once the jaws have closed
-            _, _, terminated, _, info = env.step(np.array([0, 0, down, 0, 1], np.float32))
-            tcp_z = env.unwrapped.world.tcp_position()[2]
-            trace.append((info["reward_approach"], info["step_peak_force"], tcp_z))
-            if terminated:
-                break
-        return trace
+        return [(info["reward_approach"], info["step_peak_force"], z) for _, info, z in trace]
 
     free, guarded = descend(), descend(approach_lead_limit=0.003)
     assert len(free) == len(guarded) == 45  # neither stopped
