@@ -17,6 +17,8 @@ from liuxing_envs.envs.instrument_grasp import (
     DEFAULT_FORCE_LIMIT,
     FORCE_SAMPLE_SUBSTEPS,
     GRASP_FORCE_THRESHOLD,
+    GUARD_MIN_GAP,
+    GUARD_TOLERANCE,
     READY_OPENING,
     READY_TCP,
     InstrumentGraspEnv,
@@ -625,14 +627,33 @@ def test_a_tool_start_into_the_instrument_is_raised_until_the_gripper_touches_no
     assert not terminated and info["step_peak_force"] == 0.0
 
 
-def lower_closed_jaws(speed, steps, start_height=0.02, arm_stiffness=0.1, **kwargs):
+def record_pad_leads(env):
+    """A list that gets, at each step of ``env`` (unwrapped), the (gap, lead) in m of each pad
+    near the instrument: its gap before the step, and how far the step's set-point leads it
+    toward the instrument (a spy: the env's own arm step runs)."""
+    world, arm_step, steps = env.world, env._apply_arm_action, []
+
+    def spy(arm_action):
+        near = world.approach_directions(env.approach_distance, min_gap=GUARD_MIN_GAP)
+        arm_step(arm_action)
+        leads = world.pad_leads(near, world.arm_ctrl())
+        steps.append([(gap, lead) for (_, _, gap), lead in zip(near, leads, strict=True)])
+
+    env._apply_arm_action = spy
+    return steps
+
+
+def lower_closed_jaws(speed, steps, start_height=0.02, arm_stiffness=0.1, leads=None, **kwargs):
     """Force-gripper jaws started open ``start_height`` (m) over the handle (seed 0), closed
     for five steps, then lowered ``speed`` x max_translation a step (0.5: 1 cm): (reward,
-    info, tool-centre height) of each step, up to ``steps`` or a protective stop."""
+    info, tool-centre height) of each step, up to ``steps`` or a protective stop. ``leads``,
+    a list, gets every near pad's (gap, lead) (see :func:`record_pad_leads`)."""
     env = gym.make(
         "InstrumentGrasp-v0", gripper_control="force", arm_stiffness=arm_stiffness, **kwargs
     )
     env.reset(seed=0, options={"tool_start": [0.0, 0.0, start_height]})
+    if leads is not None:
+        recorded = record_pad_leads(env.unwrapped)
     trace = []
     for step in range(steps):
         down = -speed if step >= 5 else 0.0  # once the jaws have closed
@@ -640,6 +661,8 @@ def lower_closed_jaws(speed, steps, start_height=0.02, arm_stiffness=0.1, **kwar
         trace.append((reward, info, env.unwrapped.world.tcp_position()[2]))
         if terminated:
             break
+    if leads is not None:
+        leads.extend(pair for near in recorded for pair in near)
     return trace
 
 
@@ -746,6 +769,48 @@ def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
     assert all(term == 0.0 for term in sweep(approach_lead_limit=0.003))
 
 
+def test_a_sloped_lead_limit_lets_a_pad_lead_more_the_further_it_is_and_land_gently():
+    """Closed jaws 5 cm over the handle, lowered 1 cm a step: a lead limit of 0.25 mm plus 0.3
+    times each pad's own gap is kept at every step, leads more than 1 mm while the pad is
+    still away, and lands on the handle under the force limit, where a constant 3 mm limit
+    lands over it and a constant 0.25 mm one stalls the compliant arm short of the handle.
+    Open jaws turning as they descend, their pads' gaps apart, keep each pad's own limit."""
+    limit, slope = 0.00025, 0.3
+
+    def within_limit(steps):
+        return all(lead <= limit + slope * gap + GUARD_TOLERANCE for gap, lead in steps)
+
+    def landing(**kwargs):
+        trace = lower_closed_jaws(0.5, 60, start_height=0.05, **kwargs)
+        assert len(trace) == 60  # no protective stop
+        forces = [info["step_peak_force"] for _, info, _ in trace]
+        touch = next((i for i, force in enumerate(forces) if force > 0.0), None)
+        return None if touch is None else max(forces[touch : touch + 3])
+
+    leads = []
+    sloped = landing(approach_lead_limit=limit, approach_lead_slope=slope, leads=leads)
+    assert within_limit(leads)
+    assert max(lead for _, lead in leads) > 0.001
+    assert sloped is not None and 0.0 < sloped < DEFAULT_FORCE_LIMIT
+    assert landing(approach_lead_limit=0.003) > DEFAULT_FORCE_LIMIT
+    assert landing(approach_lead_limit=limit) is None
+
+    env = gym.make(
+        "InstrumentGrasp-v0",
+        gripper_control="force",
+        arm_stiffness=0.1,
+        approach_lead_limit=limit,
+        approach_lead_slope=slope,
+    ).unwrapped
+    env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.02]})
+    by_step = record_pad_leads(env)
+    for _ in range(30):
+        env.step(np.array([0, 0, -0.5, 0.5, -1], np.float32))
+    assert within_limit([pair for near in by_step for pair in near])
+    both = [near for near in by_step if len(near) == 2]
+    assert max(abs(left[0] - right[0]) for left, right in both) > 0.0005
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -787,6 +852,12 @@ def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
         (
             {"approach_lead_limit": 0.06, "controller": "joint_delta"},
             "approach_lead_limit slows ee_delta steps; with controller='joint_delta' it must",
+        ),
+        ({"approach_lead_slope": -0.1}, r"approach_lead_slope must be a number in \[0.0, 1.0\]"),
+        (
+            {"approach_lead_slope": 0.3},
+            "approach_lead_slope=0.3 raises approach_lead_limit with a pad's gap; set "
+            "approach_lead_limit too",
         ),
         # An array is not a choice: one element passed as it, more raised numpy's error.
         ({"controller": np.array(["ee_delta"])}, r"controller=array\(\['ee_delta'\].* choose"),

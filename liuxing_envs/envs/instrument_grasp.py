@@ -86,6 +86,16 @@ DEFAULT_APPROACH_ALLOWANCE = 0.003  # m of set-point move per control step
 #: A servo presses with about its stiffness times its lead when the pad lands, so this bounds
 #: that push (not the arm's momentum), which the force terms cannot see coming.
 DEFAULT_APPROACH_LEAD_LIMIT = None
+#: How much further (m per metre of the pad's gap) the set-point may lead a pad that is still
+#: away from the instrument: the lead allowed is ``approach_lead_limit`` plus this times the
+#: gap, so a pad slows as it nears the instrument and lands at the speed that
+#: ``approach_lead_limit`` alone sets. A compliant arm moves at a rate proportional to its
+#: lead, and a pad landing at 5-10 cm/s passes the hard limit within one 10 ms force sample,
+#: often within one 2 ms physics step (``docs/training_notes.md``): a constant limit lets the
+#: arm arrive that fast, and a small constant one stalls it. At 1 the set-point may reach the
+#: instrument's surface, no braking at all, hence the bound.
+DEFAULT_APPROACH_LEAD_SLOPE = 0.0
+MAX_APPROACH_LEAD_SLOPE = 1.0
 #: Closer than this (m) the direction from pad to instrument is left to the contact forces:
 #: it is not defined at a touch.
 APPROACH_MIN_GAP = 0.0005
@@ -262,7 +272,14 @@ class InstrumentGraspEnv(gym.Env):
     momentum, and a pad already touching is not guarded (its lead across the handle is what
     grips). Closed jaws lowered 1 cm a step onto a handle (``arm_stiffness=0.1``) land with
     7.2 N at a limit of 3 mm against 12.9 N unguarded, the tool descending the last 1.5 cm
-    at about 1 mm a step instead of 2.9 mm.
+    at about 1 mm a step instead of 2.9 mm. With ``approach_lead_slope`` (0 by default) the
+    limit grows with the pad's gap, ``approach_lead_limit`` + ``approach_lead_slope`` x gap,
+    a braking ramp: a compliant arm moves at a rate proportional to its lead, so a pad slows
+    as it nears the instrument and lands at the speed the limit at a touch allows, where a
+    constant limit lets the arm arrive fast (a pad landing at 5-10 cm/s passes the hard limit
+    within one 10 ms force sample) or, if small, stalls it. The same descent at 0.25 mm + 0.3
+    x gap lands with 2.1 N; at a constant 0.25 mm the arm crawls and never reaches the handle
+    in 60 steps. The slope may be 0 to 1 (at 1 the set-point may reach the instrument).
 
     An ``ee_delta`` action moves the set-point, from where the tool is: the tool follows
     within the step only as far as the servos take it, and not exactly along the action's
@@ -387,6 +404,7 @@ class InstrumentGraspEnv(gym.Env):
     ``hold_time=1.0``, ``reach_sharpness=10.0``, ``force_penalty=0.2``,
     ``impact_penalty=0.05``, ``failure_penalty=5.0``, ``approach_penalty=0.0``,
     ``approach_distance=0.015``, ``approach_allowance=0.003``, ``approach_lead_limit=None``,
+    ``approach_lead_slope=0.0``,
     ``terminate_on_success=False``,
     ``max_translation=0.02``, ``max_yaw=0.2``, ``max_joint_delta=0.05``,
     ``max_gripper_delta=0.004``, ``max_grip_force=20.0``, ``arm_stiffness=1.0``,
@@ -421,7 +439,8 @@ class InstrumentGraspEnv(gym.Env):
     within v0 (2026-11-28; off by default, so default rewards are unchanged):
     ``approach_penalty``, ``approach_distance``, ``approach_allowance`` and the
     ``reward_approach`` term (0 unless the penalty is set); then ``approach_lead_limit``
-    (None, off, so default episodes are unchanged).
+    (None, off, so default episodes are unchanged), then ``approach_lead_slope`` (0, so
+    episodes with a constant limit are unchanged too).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -449,6 +468,7 @@ class InstrumentGraspEnv(gym.Env):
         approach_distance: float = DEFAULT_APPROACH_DISTANCE,
         approach_allowance: float = DEFAULT_APPROACH_ALLOWANCE,
         approach_lead_limit: float | None = DEFAULT_APPROACH_LEAD_LIMIT,
+        approach_lead_slope: float = DEFAULT_APPROACH_LEAD_SLOPE,
         terminate_on_success: bool = False,
         max_translation: float = DEFAULT_MAX_TRANSLATION,
         max_yaw: float = DEFAULT_MAX_YAW,
@@ -510,6 +530,7 @@ class InstrumentGraspEnv(gym.Env):
             require_number(name, value, low, high)
         if servo_damping_ratio is not None:
             require_number("servo_damping_ratio", servo_damping_ratio, 0.1, 10.0)
+        require_number("approach_lead_slope", approach_lead_slope, 0.0, MAX_APPROACH_LEAD_SLOPE)
         if approach_lead_limit is not None:
             require_number("approach_lead_limit", approach_lead_limit, 0.0, 0.1)
             if controller != "ee_delta":
@@ -517,6 +538,12 @@ class InstrumentGraspEnv(gym.Env):
                     "approach_lead_limit slows ee_delta steps; with controller='joint_delta' "
                     "it must be None"
                 )
+        elif approach_lead_slope:
+            raise ValueError(
+                f"approach_lead_slope={approach_lead_slope} raises approach_lead_limit with a "
+                "pad's gap; set approach_lead_limit too (the lead allowed at a touch, m; "
+                "controller='ee_delta' only)"
+            )
         require_int("resolution", resolution, 8, 512)
         require_int("episode_steps", episode_steps, 1, 100_000)
         self.episode_steps = episode_steps
@@ -570,6 +597,7 @@ class InstrumentGraspEnv(gym.Env):
         self.approach_lead_limit = (
             None if approach_lead_limit is None else float(approach_lead_limit)
         )
+        self.approach_lead_slope = float(approach_lead_slope)
         self.terminate_on_success = bool(terminate_on_success)
         self.max_translation, self.max_yaw = max_translation, max_yaw
         self.max_joint_delta = max_joint_delta
@@ -904,12 +932,14 @@ class InstrumentGraspEnv(gym.Env):
 
     def _guard_approach(self, arm_action: np.ndarray, qpos: np.ndarray) -> np.ndarray | None:
         """``qpos``, the set-point of ``arm_action``, or where it runs more than
-        ``approach_lead_limit`` ahead of a pad near the instrument, the set-point of the same
-        move shortened until it does not (to nothing: hold the pose)."""
-        world, limit = self.world, self.approach_lead_limit
+        ``approach_lead_limit`` (plus ``approach_lead_slope`` times its gap) ahead of a pad near
+        the instrument, the set-point of the same move shortened until it does not (to nothing:
+        hold the pose)."""
+        world, slope = self.world, self.approach_lead_slope
         near = world.approach_directions(self.approach_distance, min_gap=GUARD_MIN_GAP)
+        limits = [self.approach_lead_limit + slope * gap for _, _, gap in near]
         leads = world.pad_leads(near, qpos)
-        if max(leads, default=0.0) <= limit:
+        if all(lead <= limit for lead, limit in zip(leads, limits, strict=True)):
             return qpos
         held = self._ee_set_point(arm_action, scale=0.0)
         if held is None:
@@ -922,7 +952,7 @@ class InstrumentGraspEnv(gym.Env):
         scale = 1.0
         for _ in range(GUARD_TRIES):
             shorter = scale
-            for lead, held_lead in zip(leads, held_leads, strict=True):
+            for lead, held_lead, limit in zip(leads, held_leads, limits, strict=True):
                 gain = lead - held_lead
                 if lead > limit and gain > 0.0:
                     shorter = min(shorter, scale * max(0.0, limit - held_lead) / gain)
@@ -933,7 +963,9 @@ class InstrumentGraspEnv(gym.Env):
             if qpos is None:
                 return held
             leads = world.pad_leads(near, qpos)
-            if max(leads) <= limit + GUARD_TOLERANCE:
+            if all(
+                lead <= limit + GUARD_TOLERANCE for lead, limit in zip(leads, limits, strict=True)
+            ):
                 break
         return qpos
 
@@ -1302,9 +1334,9 @@ class _World:
 
     def approach_directions(
         self, distance: float, min_gap: float = APPROACH_MIN_GAP
-    ) -> list[tuple[int, np.ndarray]]:
-        """(pad geom, unit vector from it to the instrument's nearest point) for each pad
-        between ``min_gap`` and ``distance`` (m) of the instrument."""
+    ) -> list[tuple[int, np.ndarray, float]]:
+        """(pad geom, unit vector from it to the instrument's nearest point, gap in m) for
+        each pad between ``min_gap`` and ``distance`` (m) of the instrument."""
         model, data = self.model, self.data
         near = []
         for pad in self.gripper.pad_geoms:
@@ -1315,7 +1347,7 @@ class _World:
                     nearest = gap
                     toward = (self._fromto[3:] - self._fromto[:3]) / gap if gap > 0 else None
             if toward is not None and nearest >= min_gap:
-                near.append((pad, toward))
+                near.append((pad, toward, nearest))
         return near
 
     def pad_leads(self, near, arm_set_point) -> list[float]:
@@ -1327,7 +1359,8 @@ class _World:
             return []
         data, scratch = self.data, self._posed(arm_set_point)
         return [
-            float((scratch.geom_xpos[pad] - data.geom_xpos[pad]) @ toward) for pad, toward in near
+            float((scratch.geom_xpos[pad] - data.geom_xpos[pad]) @ toward)
+            for pad, toward, _ in near
         ]
 
     def impact_force(self) -> float:
