@@ -88,6 +88,7 @@ TASKS = {
             "hard_limit_exceeded",
             "force_violations",
             "impact_violations",
+            "guarded_steps",
         ),
     ),
 }

@@ -730,23 +730,31 @@ def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
             approach_allowance=0.00301,
             **kwargs,
         )
-        return [(info["reward_approach"], info["step_peak_force"], z) for _, info, z in trace]
+        return [
+            (info["reward_approach"], info["step_peak_force"], info["guarded_steps"], z)
+            for _, info, z in trace
+        ]
 
     free, guarded = descend(), descend(approach_lead_limit=0.003)
     assert len(free) == len(guarded) == 45  # neither stopped
     first_charge = next(i for i, (term, *_) in enumerate(free) if term < 0.0)
     assert first_charge >= 8  # from 5 cm down, well after the jaws closed
     assert all(term == 0.0 for term, *_ in guarded)
-    slowed = next(i for i, (*_, z) in enumerate(guarded) if z != free[i][2])
+    slowed = next(i for i, (*_, z) in enumerate(guarded) if z != free[i][3])
     assert slowed == first_charge  # full speed until then
+    # info counts the steps the guard shortened: from that one on, and none unguarded.
+    assert all(count == 0 for _, _, count, _ in free)
+    counts = [count for _, _, count, _ in guarded]
+    assert counts[slowed - 1] == 0 and counts[slowed] == 1
+    assert counts == sorted(counts) and counts[-1] > 10
     touch = {
-        name: next(i for i, (_, force, _) in enumerate(trace) if force > 0.0)
+        name: next(i for i, (_, force, *_) in enumerate(trace) if force > 0.0)
         for name, trace in (("free", free), ("guarded", guarded))
     }
     assert touch["guarded"] > touch["free"]
 
     def landing(trace, start):
-        return max(force for _, force, _ in trace[start : start + 3])
+        return max(force for _, force, *_ in trace[start : start + 3])
 
     assert 0.0 < landing(guarded, touch["guarded"]) < 0.75 * landing(free, touch["free"])
 

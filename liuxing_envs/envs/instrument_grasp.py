@@ -358,8 +358,9 @@ class InstrumentGraspEnv(gym.Env):
     never been above ``force_limit``. It ends the episode only with ``terminate_on_success``.
     ``info`` also carries ``peak_force`` (episode, N), ``step_peak_force``, ``grip_force``
     (now), ``lift_height`` (m), ``force_violations`` (control steps above the limit),
-    ``impact_violations``, ``hard_limit_exceeded``, ``grasped``, ``instrument`` and
-    ``sim_unstable``.
+    ``impact_violations``, ``guarded_steps`` (control steps whose move the approach guard
+    shortened; 0 without ``approach_lead_limit``), ``hard_limit_exceeded``, ``grasped``,
+    ``instrument`` and ``sim_unstable``.
 
     **Simulator faults**: physics that diverges (NaN, inf or huge accelerations, which MuJoCo
     answers by resetting its data) ends the step at once: reward 0 (every term 0), truncated,
@@ -440,7 +441,7 @@ class InstrumentGraspEnv(gym.Env):
     ``approach_penalty``, ``approach_distance``, ``approach_allowance`` and the
     ``reward_approach`` term (0 unless the penalty is set); then ``approach_lead_limit``
     (None, off, so default episodes are unchanged), then ``approach_lead_slope`` (0, so
-    episodes with a constant limit are unchanged too).
+    episodes with a constant limit are unchanged too) and ``info["guarded_steps"]``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -702,6 +703,7 @@ class InstrumentGraspEnv(gym.Env):
         self._peak_force = 0.0
         self._force_violations = 0
         self._impact_violations = 0
+        self._guarded_steps = 0
         self._start_height = self.world.grasp_point()[2]
         self._episode_ready = True
         info = self._info(terms={}, grasped=False, step_peak=0.0, success=False, lift=0.0)
@@ -941,6 +943,7 @@ class InstrumentGraspEnv(gym.Env):
         leads = world.pad_leads(near, qpos)
         if all(lead <= limit for lead, limit in zip(leads, limits, strict=True)):
             return qpos
+        self._guarded_steps += 1  # from here on the step is shortened or held
         held = self._ee_set_point(arm_action, scale=0.0)
         if held is None:
             return None
@@ -1064,6 +1067,7 @@ class InstrumentGraspEnv(gym.Env):
             "lift_height": float(lift),
             "force_violations": self._force_violations,
             "impact_violations": self._impact_violations,
+            "guarded_steps": self._guarded_steps,
             "instrument": world.name,
             "sim_unstable": unstable,
             "hard_limit_exceeded": bool(broke_limit),
