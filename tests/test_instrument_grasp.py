@@ -666,6 +666,14 @@ def lower_closed_jaws(speed, steps, start_height=0.02, arm_stiffness=0.1, leads=
     return trace
 
 
+def first_landing(trace):
+    """(step of the first pad touch, peak pad force over it and the next two steps) of a
+    :func:`lower_closed_jaws` trace, or (None, None) where no pad touches."""
+    forces = [info["step_peak_force"] for _, info, _ in trace]
+    touch = next((i for i, force in enumerate(forces) if force > 0.0), None)
+    return (None, None) if touch is None else (touch, max(forces[touch : touch + 3]))
+
+
 def test_a_compliant_arm_presses_the_instrument_less_than_a_stiff_one():
     """The same push of closed jaws down onto the handle: the stiff arm trips the protective
     stop, the compliant one (arm_stiffness=0.1) settles on it with a few newtons."""
@@ -730,33 +738,24 @@ def test_the_approach_lead_limit_slows_only_the_steps_near_the_instrument():
             approach_allowance=0.00301,
             **kwargs,
         )
-        return [
-            (info["reward_approach"], info["step_peak_force"], info["guarded_steps"], z)
-            for _, info, z in trace
-        ]
+        steps = [(info["reward_approach"], info["guarded_steps"], z) for _, info, z in trace]
+        return steps, first_landing(trace)
 
-    free, guarded = descend(), descend(approach_lead_limit=0.003)
+    free, free_landing = descend()
+    guarded, guarded_landing = descend(approach_lead_limit=0.003)
     assert len(free) == len(guarded) == 45  # neither stopped
     first_charge = next(i for i, (term, *_) in enumerate(free) if term < 0.0)
     assert first_charge >= 8  # from 5 cm down, well after the jaws closed
     assert all(term == 0.0 for term, *_ in guarded)
-    slowed = next(i for i, (*_, z) in enumerate(guarded) if z != free[i][3])
+    slowed = next(i for i, (*_, z) in enumerate(guarded) if z != free[i][2])
     assert slowed == first_charge  # full speed until then
     # info counts the steps the guard shortened: from that one on, and none unguarded.
-    assert all(count == 0 for _, _, count, _ in free)
-    counts = [count for _, _, count, _ in guarded]
+    assert all(count == 0 for _, count, _ in free)
+    counts = [count for _, count, _ in guarded]
     assert counts[slowed - 1] == 0 and counts[slowed] == 1
     assert counts == sorted(counts) and counts[-1] > 10
-    touch = {
-        name: next(i for i, (_, force, *_) in enumerate(trace) if force > 0.0)
-        for name, trace in (("free", free), ("guarded", guarded))
-    }
-    assert touch["guarded"] > touch["free"]
-
-    def landing(trace, start):
-        return max(force for _, force, *_ in trace[start : start + 3])
-
-    assert 0.0 < landing(guarded, touch["guarded"]) < 0.75 * landing(free, touch["free"])
+    assert guarded_landing[0] > free_landing[0]  # touches later
+    assert 0.0 < guarded_landing[1] < 0.75 * free_landing[1]
 
     def sweep(**kwargs):
         env = gym.make(
@@ -791,9 +790,7 @@ def test_a_sloped_lead_limit_lets_a_pad_lead_more_the_further_it_is_and_land_gen
     def landing(**kwargs):
         trace = lower_closed_jaws(0.5, 60, start_height=0.05, **kwargs)
         assert len(trace) == 60  # no protective stop
-        forces = [info["step_peak_force"] for _, info, _ in trace]
-        touch = next((i for i, force in enumerate(forces) if force > 0.0), None)
-        return None if touch is None else max(forces[touch : touch + 3])
+        return first_landing(trace)[1]
 
     leads = []
     sloped = landing(approach_lead_limit=limit, approach_lead_slope=slope, leads=leads)
