@@ -89,6 +89,7 @@ TASKS = {
             "force_violations",
             "impact_violations",
             "guarded_steps",
+            "guarded_finger_steps",
         ),
     ),
 }

@@ -635,9 +635,10 @@ def record_pad_leads(env):
 
     def spy(arm_action):
         near = world.approach_directions(env.approach_distance, min_gap=GUARD_MIN_GAP)
-        arm_step(arm_action)
+        watched = arm_step(arm_action)
         leads = world.pad_leads(near, world.arm_ctrl())
         steps.append([(gap, lead) for (_, _, gap), lead in zip(near, leads, strict=True)])
+        return watched
 
     env._apply_arm_action = spy
     return steps
@@ -816,6 +817,93 @@ def test_a_sloped_lead_limit_lets_a_pad_lead_more_the_further_it_is_and_land_gen
     assert max(abs(left[0] - right[0]) for left, right in both) > 0.0005
 
 
+#: The shipped grasp policy's arm and gripper (policies/InstrumentGrasp-v0/sac/config.yml).
+SHIPPED_ARM = {
+    "gripper_control": "force",
+    "max_grip_force": 3.0,
+    "arm_stiffness": 0.1,
+    "max_translation": 0.01,
+    "max_yaw": 0.1,
+    "servo_damping_ratio": 0.7,
+}
+BRAKING_GUARD = {"approach_lead_limit": 0.00025, "approach_lead_slope": 0.3}
+
+
+def test_the_finger_guard_brakes_closing_fingers_by_the_same_ramp_and_they_still_grip():
+    """Force-commanded jaws open across the handle close with the arm held. Unguarded, the
+    pads close at 7.5 cm/s and land over the grip force. With ``approach_guard_fingers`` each
+    pad closes no more per step than the braking ramp allows (0.25 mm + 0.3 x its gap), lands
+    under the grip force and still grips; the observation keeps the action's command."""
+    limit, slope = BRAKING_GUARD["approach_lead_limit"], BRAKING_GUARD["approach_lead_slope"]
+
+    def close(guard_fingers):
+        env = gym.make(
+            "InstrumentGrasp-v0",
+            **SHIPPED_ARM,
+            **BRAKING_GUARD,
+            approach_guard_fingers=guard_fingers,
+        ).unwrapped
+        env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.0]})
+        world, excess, trace = env.world, [], []
+        for _ in range(20):
+            before = [gap for _, _, gap in world.approach_directions(0.015, GUARD_MIN_GAP)]
+            obs, _, terminated, _, info = env.step(np.array([0, 0, 0, 0, 1], np.float32))
+            assert not terminated
+            after = [gap for _, _, gap in world.approach_directions(0.015, 0.0)]
+            if len(before) == len(after) == 2:
+                excess += [b - a - (limit + slope * b) for b, a in zip(before, after, strict=True)]
+            assert obs["proprio"][18] == 0.0  # the commanded opening: closed, as asked
+            trace.append(info)
+        touch = next(i for i, info in enumerate(trace) if info["step_peak_force"] > 0.0)
+        return max(excess), trace[touch]["step_peak_force"], touch, trace[-1]
+
+    excess, landing, touch, last = close(guard_fingers=False)
+    assert excess > 0.001 and landing > 3.5 and last["guarded_finger_steps"] == 0
+    excess, gentle, gentle_touch, last = close(guard_fingers=True)
+    assert excess <= GUARD_TOLERANCE
+    assert 0.0 < gentle < 3.0 and gentle_touch > touch
+    assert last["grasped"] and last["guarded_finger_steps"] >= 5
+
+
+def test_the_finger_guard_leaves_a_finger_what_the_arm_leaves_of_the_lead(monkeypatch):
+    """Jaws closing while the arm lowers them onto the handle: as each step's physics starts,
+    a near pad's lead from the arm's set-point and its finger's servo target together keeps
+    the braking ramp, where the arm's share alone reaches 0.5 mm (a spy on ``mj_step``: the
+    real one runs)."""
+    limit, slope = BRAKING_GUARD["approach_lead_limit"], BRAKING_GUARD["approach_lead_slope"]
+    env = gym.make(
+        "InstrumentGrasp-v0", **SHIPPED_ARM, **BRAKING_GUARD, approach_guard_fingers=True
+    ).unwrapped
+    env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.01]})
+    world, gripper = env.world, env.world.gripper
+    real_step, commands = mujoco.mj_step, []
+
+    def spy(model, data, nstep=1):
+        if len(commands) < env._steps + 1:  # the step's first physics call: its commands set
+            near = world.approach_directions(env.approach_distance, GUARD_MIN_GAP)
+            closing = gripper.closing_directions()
+            leads = []
+            for (pad, toward, gap), arm_lead in zip(
+                near, world.pad_leads(near, world.arm_ctrl()), strict=True
+            ):
+                finger = gripper.finger_of(pad)
+                travel = (
+                    data.qpos[gripper._qpos_idx[finger]] - data.ctrl[gripper._actuators[finger]]
+                )
+                finger_lead = max(0.0, travel * float(closing[finger] @ toward))
+                leads.append((gap, arm_lead, arm_lead + finger_lead))
+            commands.append(leads)
+        real_step(model, data, nstep=nstep)
+
+    monkeypatch.setattr(mujoco, "mj_step", spy)
+    for _ in range(25):
+        env.step(np.array([0, 0, -0.3, 0, 1], np.float32))
+    leads = [lead for step in commands for lead in step]
+    assert max(arm for _, arm, _ in leads) > 0.0005
+    assert all(both <= limit + slope * gap + GUARD_TOLERANCE for gap, _, both in leads)
+    assert env.world.grasped()
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -863,6 +951,14 @@ def test_a_sloped_lead_limit_lets_a_pad_lead_more_the_further_it_is_and_land_gen
             {"approach_lead_slope": 0.3},
             "approach_lead_slope=0.3 raises approach_lead_limit with a pad's gap; set "
             "approach_lead_limit too",
+        ),
+        (
+            {"approach_guard_fingers": True},
+            "approach_guard_fingers=True widens the approach guard, which approach_lead_limit",
+        ),
+        (
+            {"approach_guard_fingers": "yes", "approach_lead_limit": 0.001},
+            r"approach_guard_fingers='yes' is not allowed; choose one of \[False, True\]",
         ),
         # An array is not a choice: one element passed as it, more raised numpy's error.
         ({"controller": np.array(["ee_delta"])}, r"controller=array\(\['ee_delta'\].* choose"),

@@ -96,6 +96,11 @@ DEFAULT_APPROACH_LEAD_LIMIT = None
 #: instrument's surface, no braking at all, hence the bound.
 DEFAULT_APPROACH_LEAD_SLOPE = 0.0
 MAX_APPROACH_LEAD_SLOPE = 1.0
+#: Whether the approach guard also shortens a closing finger's servo target, so that a pad's
+#: lead counts the finger's closing as well as the arm's move. Force-commanded fingers close at
+#: 7.5 cm/s at 3 N (``max_grip_force`` over their damping), as fast as the arm landings that pass
+#: the hard limit.
+DEFAULT_APPROACH_GUARD_FINGERS = False
 #: Closer than this (m) the direction from pad to instrument is left to the contact forces:
 #: it is not defined at a touch.
 APPROACH_MIN_GAP = 0.0005
@@ -280,6 +285,14 @@ class InstrumentGraspEnv(gym.Env):
     within one 10 ms force sample) or, if small, stalls it. The same descent at 0.25 mm + 0.3
     x gap lands with 2.1 N; at a constant 0.25 mm the arm crawls and never reaches the handle
     in 60 steps. The slope may be 0 to 1 (at 1 the set-point may reach the instrument).
+    With ``approach_guard_fingers`` (False by default) the guard counts the fingers too: where
+    a finger closes toward the instrument, its servo target is shortened so that its pad,
+    carried by the arm's set-point and by its finger together, leads no more than the same
+    allowance (a pad already touching is left to grip). Force-commanded fingers close at
+    ``max_grip_force`` over their damping, 7.5 cm/s at 3 N, as fast as the arm landings that
+    pass the hard limit. Jaws open 6 cm across a handle and closed with the arm held
+    (``max_grip_force=3``, 0.25 mm + 0.3 x gap) land with 1.2 N instead of 3.9 N, five steps
+    later, and grip. The observation's commanded opening stays the action's.
 
     An ``ee_delta`` action moves the set-point, from where the tool is: the tool follows
     within the step only as far as the servos take it, and not exactly along the action's
@@ -305,7 +318,8 @@ class InstrumentGraspEnv(gym.Env):
                                 tool-centre position (3, m), cos and sin of the tool yaw (2),
                                 pad opening and commanded opening (2, m; with
                                 ``gripper_control="force"`` the command is the servos'
-                                end of travel: 0 while closing, 0.08 while opening)
+                                end of travel: 0 while closing, 0.08 while opening; the
+                                action's, before ``approach_guard_fingers`` shortens it)
     ``forces``      (2,)        left and right fingertip normal force (N): the pads' touch
                                 sensors, i.e. every contact on a pad (instrument, tray, ...)
     ``instrument``  (14,)       ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
@@ -359,7 +373,9 @@ class InstrumentGraspEnv(gym.Env):
     ``info`` also carries ``peak_force`` (episode, N), ``step_peak_force``, ``grip_force``
     (now), ``lift_height`` (m), ``force_violations`` (control steps above the limit),
     ``impact_violations``, ``guarded_steps`` (control steps whose move the approach guard
-    shortened; 0 without ``approach_lead_limit``), ``hard_limit_exceeded``, ``grasped``,
+    shortened; 0 without ``approach_lead_limit``), ``guarded_finger_steps`` (control steps in
+    which it shortened a finger's target; 0 without ``approach_guard_fingers``),
+    ``hard_limit_exceeded``, ``grasped``,
     ``instrument`` and ``sim_unstable``.
 
     **Simulator faults**: physics that diverges (NaN, inf or huge accelerations, which MuJoCo
@@ -405,7 +421,7 @@ class InstrumentGraspEnv(gym.Env):
     ``hold_time=1.0``, ``reach_sharpness=10.0``, ``force_penalty=0.2``,
     ``impact_penalty=0.05``, ``failure_penalty=5.0``, ``approach_penalty=0.0``,
     ``approach_distance=0.015``, ``approach_allowance=0.003``, ``approach_lead_limit=None``,
-    ``approach_lead_slope=0.0``,
+    ``approach_lead_slope=0.0``, ``approach_guard_fingers=False``,
     ``terminate_on_success=False``,
     ``max_translation=0.02``, ``max_yaw=0.2``, ``max_joint_delta=0.05``,
     ``max_gripper_delta=0.004``, ``max_grip_force=20.0``, ``arm_stiffness=1.0``,
@@ -441,7 +457,9 @@ class InstrumentGraspEnv(gym.Env):
     ``approach_penalty``, ``approach_distance``, ``approach_allowance`` and the
     ``reward_approach`` term (0 unless the penalty is set); then ``approach_lead_limit``
     (None, off, so default episodes are unchanged), then ``approach_lead_slope`` (0, so
-    episodes with a constant limit are unchanged too) and ``info["guarded_steps"]``.
+    episodes with a constant limit are unchanged too) and ``info["guarded_steps"]``; then
+    ``approach_guard_fingers`` (False, so episodes without it are unchanged) and
+    ``info["guarded_finger_steps"]``.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -470,6 +488,7 @@ class InstrumentGraspEnv(gym.Env):
         approach_allowance: float = DEFAULT_APPROACH_ALLOWANCE,
         approach_lead_limit: float | None = DEFAULT_APPROACH_LEAD_LIMIT,
         approach_lead_slope: float = DEFAULT_APPROACH_LEAD_SLOPE,
+        approach_guard_fingers: bool = DEFAULT_APPROACH_GUARD_FINGERS,
         terminate_on_success: bool = False,
         max_translation: float = DEFAULT_MAX_TRANSLATION,
         max_yaw: float = DEFAULT_MAX_YAW,
@@ -545,6 +564,13 @@ class InstrumentGraspEnv(gym.Env):
                 "pad's gap; set approach_lead_limit too (the lead allowed at a touch, m; "
                 "controller='ee_delta' only)"
             )
+        require_choice("approach_guard_fingers", approach_guard_fingers, (False, True))
+        if approach_guard_fingers and approach_lead_limit is None:
+            raise ValueError(
+                "approach_guard_fingers=True widens the approach guard, which "
+                "approach_lead_limit turns on; set approach_lead_limit too (the lead allowed at "
+                "a touch, m; controller='ee_delta' only)"
+            )
         require_int("resolution", resolution, 8, 512)
         require_int("episode_steps", episode_steps, 1, 100_000)
         self.episode_steps = episode_steps
@@ -599,6 +625,7 @@ class InstrumentGraspEnv(gym.Env):
             None if approach_lead_limit is None else float(approach_lead_limit)
         )
         self.approach_lead_slope = float(approach_lead_slope)
+        self.approach_guard_fingers = bool(approach_guard_fingers)
         self.terminate_on_success = bool(terminate_on_success)
         self.max_translation, self.max_yaw = max_translation, max_yaw
         self.max_joint_delta = max_joint_delta
@@ -704,6 +731,8 @@ class InstrumentGraspEnv(gym.Env):
         self._force_violations = 0
         self._impact_violations = 0
         self._guarded_steps = 0
+        self._guarded_finger_steps = 0
+        self._gripper_command = self.world.gripper.commanded_opening()
         self._start_height = self.world.grasp_point()[2]
         self._episode_ready = True
         info = self._info(terms={}, grasped=False, step_peak=0.0, success=False, lift=0.0)
@@ -718,7 +747,7 @@ class InstrumentGraspEnv(gym.Env):
             raise RuntimeError("call reset() before step(), and again after an episode ends")
         action = np.clip(as_action(action, self.action_space.shape), -1.0, 1.0)
         world = self.world
-        self._apply_arm_action(action[:-1])
+        near = self._apply_arm_action(action[:-1])
         approach = (
             sum(
                 max(0.0, move - self.approach_allowance)
@@ -728,13 +757,14 @@ class InstrumentGraspEnv(gym.Env):
             else 0.0
         )
         if self.gripper_control == "delta":
-            world.gripper.command(
-                world.gripper.commanded_opening() + self.max_gripper_delta * action[-1]
-            )
+            world.gripper.command(self._gripper_command + self.max_gripper_delta * action[-1])
         elif self.gripper_control == "force":
             world.gripper.grip(self.max_grip_force * float(action[-1]))
         else:
             world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
+        self._gripper_command = world.gripper.commanded_opening()
+        if near and self.approach_guard_fingers:
+            self._guard_fingers(near)
 
         model, data, gripper = world.model, world.data, world.gripper
         # The pads' peaks as Python floats: this loop runs once per force sample (five times a
@@ -756,6 +786,7 @@ class InstrumentGraspEnv(gym.Env):
                 # fingers where they are and end the step (and the episode) here.
                 world.set_arm_ctrl(world.arm.qpos)
                 gripper.command(gripper.opening())
+                self._gripper_command = gripper.commanded_opening()
                 mujoco.mj_step(model, data, nstep=FORCE_SAMPLE_SUBSTEPS)
                 left, right = gripper.fingertip_forces().tolist()
                 peak_left, peak_right = max(peak_left, left), max(peak_right, right)
@@ -920,26 +951,35 @@ class InstrumentGraspEnv(gym.Env):
             f"y {low[1]:.3f}-{high[1]:.3f} m)"
         )
 
-    def _apply_arm_action(self, arm_action: np.ndarray) -> None:
+    def _apply_arm_action(self, arm_action: np.ndarray) -> list:
+        """Set the arm's servos for ``arm_action``; the pads the approach guard watches this
+        step (see :meth:`_World.approach_directions`; none when it is off)."""
         world = self.world
         if self.controller == "joint_delta":
             ctrl = world.arm_ctrl() + self.max_joint_delta * arm_action
             world.set_arm_ctrl(np.clip(ctrl, world.arm.lower, world.arm.upper))
-            return
+            return []
         qpos = self._ee_set_point(arm_action)
-        if qpos is not None and self.approach_lead_limit is not None:
-            qpos = self._guard_approach(arm_action, qpos)
+        near = []
+        if self.approach_lead_limit is not None:
+            near = world.approach_directions(self.approach_distance, min_gap=GUARD_MIN_GAP)
+            if qpos is not None:
+                qpos = self._guard_approach(arm_action, qpos, near)
         if qpos is not None:
             world.set_arm_ctrl(qpos)
+        return near
 
-    def _guard_approach(self, arm_action: np.ndarray, qpos: np.ndarray) -> np.ndarray | None:
+    def _lead_limits(self, near) -> list[float]:
+        """The lead (m) the approach guard allows each of the ``near`` pads."""
+        return [self.approach_lead_limit + self.approach_lead_slope * gap for _, _, gap in near]
+
+    def _guard_approach(self, arm_action: np.ndarray, qpos: np.ndarray, near) -> np.ndarray | None:
         """``qpos``, the set-point of ``arm_action``, or where it runs more than
-        ``approach_lead_limit`` (plus ``approach_lead_slope`` times its gap) ahead of a pad near
-        the instrument, the set-point of the same move shortened until it does not (to nothing:
+        ``approach_lead_limit`` (plus ``approach_lead_slope`` times its gap) ahead of one of the
+        ``near`` pads, the set-point of the same move shortened until it does not (to nothing:
         hold the pose)."""
-        world, slope = self.world, self.approach_lead_slope
-        near = world.approach_directions(self.approach_distance, min_gap=GUARD_MIN_GAP)
-        limits = [self.approach_lead_limit + slope * gap for _, _, gap in near]
+        world = self.world
+        limits = self._lead_limits(near)
         leads = world.pad_leads(near, qpos)
         if all(lead <= limit for lead, limit in zip(leads, limits, strict=True)):
             return qpos
@@ -971,6 +1011,24 @@ class InstrumentGraspEnv(gym.Env):
             ):
                 break
         return qpos
+
+    def _guard_fingers(self, near) -> None:
+        """Shorten the servo target of each finger closing toward the instrument so that its
+        pad, carried also by the arm's set-point, leads no more than the approach guard
+        allows."""
+        world, gripper = self.world, self.world.gripper
+        arm_leads = world.pad_leads(near, world.arm_ctrl())
+        closing = gripper.closing_directions()
+        shortened = False
+        for (pad, toward, _), arm_lead, limit in zip(
+            near, arm_leads, self._lead_limits(near), strict=True
+        ):
+            finger = gripper.finger_of(pad)
+            rate = float(closing[finger] @ toward)  # pad travel toward it per m of closing
+            if rate > 0.0:
+                spare = max(0.0, limit - arm_lead)
+                shortened |= gripper.limit_closing(finger, spare / rate)
+        self._guarded_finger_steps += shortened
 
     def _ee_set_point(self, arm_action: np.ndarray, scale: float = 1.0) -> np.ndarray | None:
         """The arm joint set-point an ``ee_delta`` action asks for, its move (after the
@@ -1014,7 +1072,7 @@ class InstrumentGraspEnv(gym.Env):
             cos_yaw,
             sin_yaw,
             gripper.opening(),
-            gripper.commanded_opening(),
+            self._gripper_command,  # the action's, which the approach guard may shorten
         ]
         obs = {
             "proprio": np.array(proprio, dtype=np.float32),
@@ -1068,6 +1126,7 @@ class InstrumentGraspEnv(gym.Env):
             "force_violations": self._force_violations,
             "impact_violations": self._impact_violations,
             "guarded_steps": self._guarded_steps,
+            "guarded_finger_steps": self._guarded_finger_steps,
             "instrument": world.name,
             "sim_unstable": unstable,
             "hard_limit_exceeded": bool(broke_limit),

@@ -64,6 +64,7 @@ class Gripper:
             return np.array([lookup(GRIPPER_PREFIX + name).id for name in names])
 
         joints = ids("joint", FINGER_JOINTS)
+        self._joints = joints
         self._qpos_idx = model.jnt_qposadr[joints]
         self._dof_idx = model.jnt_dofadr[joints]
         self._actuators = ids("actuator", FINGER_ACTUATORS)
@@ -106,6 +107,25 @@ class Gripper:
         self.data.qvel[self._dof_idx] = 0.0
         self.data.ctrl[self._actuators] = half
         self.model.actuator_forcerange[self._actuators] = (-self.max_force, self.max_force)
+
+    def closing_directions(self) -> np.ndarray:
+        """World-frame unit vectors along which the left and right pad move as their finger
+        closes (rows)."""
+        return -self.data.xaxis[self._joints]
+
+    def finger_of(self, pad_geom: int) -> int:
+        """0 for the left finger's pad, 1 for the right's."""
+        return 0 if pad_geom == self.pad_geoms[0] else 1
+
+    def limit_closing(self, finger: int, travel: float) -> bool:
+        """Keep ``finger``'s servo target from closing more than ``travel`` (m) past where the
+        finger is now; True where that shortened the target."""
+        actuator = self._actuators[finger]
+        lowest = float(self.data.qpos[self._qpos_idx[finger]]) - travel
+        if self.data.ctrl[actuator] >= lowest:
+            return False
+        self.data.ctrl[actuator] = lowest
+        return True
 
     def commanded_opening(self) -> float:
         left, right = self.data.ctrl[self._actuators].tolist()
