@@ -904,6 +904,27 @@ def test_the_finger_guard_leaves_a_finger_what_the_arm_leaves_of_the_lead(monkey
     assert env.world.grasped()
 
 
+def test_the_finger_guard_shortens_the_servo_target_not_the_command_a_delta_gripper_adds_to():
+    """A delta-commanded gripper closing on the handle under the finger guard: the observed
+    commanded opening falls by max_gripper_delta every step, as asked, while the servos'
+    targets, shortened by the guard, lag behind it."""
+    env = gym.make(
+        "InstrumentGrasp-v0",
+        gripper_control="delta",
+        arm_stiffness=0.1,
+        **BRAKING_GUARD,
+        approach_guard_fingers=True,
+    ).unwrapped
+    obs, _ = env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.0]})
+    start = float(obs["proprio"][18])
+    for step in range(1, 13):
+        obs, _, _, _, info = env.step(np.array([0, 0, 0, 0, -1], np.float32))
+        expected = start - step * env.max_gripper_delta
+        assert obs["proprio"][18] == pytest.approx(expected, abs=1e-6)
+    assert info["guarded_finger_steps"] > 0
+    assert env.world.gripper.commanded_opening() > expected + 0.002
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [

@@ -288,11 +288,15 @@ class InstrumentGraspEnv(gym.Env):
     With ``approach_guard_fingers`` (False by default) the guard counts the fingers too: where
     a finger closes toward the instrument, its servo target is shortened so that its pad,
     carried by the arm's set-point and by its finger together, leads no more than the same
-    allowance (a pad already touching is left to grip). Force-commanded fingers close at
+    allowance: the arm's move has it first, the finger what the arm leaves (a pad already
+    touching is left to grip). Force-commanded fingers close at
     ``max_grip_force`` over their damping, 7.5 cm/s at 3 N, as fast as the arm landings that
     pass the hard limit. Jaws open 6 cm across a handle and closed with the arm held
-    (``max_grip_force=3``, 0.25 mm + 0.3 x gap) land with 1.2 N instead of 3.9 N, five steps
-    later, and grip. The observation's commanded opening stays the action's.
+    (``max_grip_force=3``, ``arm_stiffness=0.1``, 0.25 mm + 0.3 x gap) land with 1.2 N
+    instead of 3.9 N, five steps later, and grip. The observation's commanded opening stays
+    the action's. The guard, on the arm or the fingers, reads the instrument's geometry from
+    the simulator: privileged, as the ``instrument`` observation is (a real cell would
+    measure those gaps itself).
 
     An ``ee_delta`` action moves the set-point, from where the tool is: the tool follows
     within the step only as far as the servos take it, and not exactly along the action's
@@ -316,10 +320,10 @@ class InstrumentGraspEnv(gym.Env):
     ==============  ==========  =============================================================
     ``proprio``     (19,)       arm joint angles (6, rad), joint velocities (6, rad/s),
                                 tool-centre position (3, m), cos and sin of the tool yaw (2),
-                                pad opening and commanded opening (2, m; with
+                                pad opening and commanded opening (2, m; the action's,
+                                before ``approach_guard_fingers`` shortens it; with
                                 ``gripper_control="force"`` the command is the servos'
-                                end of travel: 0 while closing, 0.08 while opening; the
-                                action's, before ``approach_guard_fingers`` shortens it)
+                                end of travel: 0 while closing, 0.08 while opening)
     ``forces``      (2,)        left and right fingertip normal force (N): the pads' touch
                                 sensors, i.e. every contact on a pad (instrument, tray, ...)
     ``instrument``  (14,)       ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
@@ -849,6 +853,7 @@ class InstrumentGraspEnv(gym.Env):
         episode's state is gone. No reward; truncated; the next reset() starts clean."""
         self._steps += 1
         self._episode_ready = False
+        self._gripper_command = self.world.gripper.commanded_opening()  # reset with the data
         terms = dict.fromkeys(REWARD_TERMS, 0.0)
         info = self._info(
             terms, grasped=False, step_peak=0.0, success=False, lift=0.0, unstable=True

@@ -68,6 +68,7 @@ class Gripper:
         self._qpos_idx = model.jnt_qposadr[joints]
         self._dof_idx = model.jnt_dofadr[joints]
         self._actuators = ids("actuator", FINGER_ACTUATORS)
+        self._ctrl_high = model.actuator_ctrlrange[self._actuators, 1].copy()
         self.pad_geoms = ids("geom", PAD_GEOMS)
         sensors = ids("sensor", PAD_TOUCH_SENSORS)
         self._touch_adr = model.sensor_adr[sensors]
@@ -121,7 +122,10 @@ class Gripper:
         """Keep ``finger``'s servo target from closing more than ``travel`` (m) past where the
         finger is now; True where that shortened the target."""
         actuator = self._actuators[finger]
-        lowest = float(self.data.qpos[self._qpos_idx[finger]]) - travel
+        # A finger pressed a hair past its travel's end must not get a target beyond it.
+        lowest = min(
+            float(self.data.qpos[self._qpos_idx[finger]]) - travel, self._ctrl_high[finger]
+        )
         if self.data.ctrl[actuator] >= lowest:
             return False
         self.data.ctrl[actuator] = lowest
