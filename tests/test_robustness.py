@@ -335,7 +335,7 @@ def failing_grasp_env():
         calls["n"] += 1
         if calls["n"] == 4:
             raise RuntimeError("injected failure")
-        original(action)
+        return original(action)
 
     env.unwrapped._apply_arm_action = apply
     return env

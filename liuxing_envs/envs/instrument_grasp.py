@@ -751,7 +751,7 @@ class InstrumentGraspEnv(gym.Env):
             raise RuntimeError("call reset() before step(), and again after an episode ends")
         action = np.clip(as_action(action, self.action_space.shape), -1.0, 1.0)
         world = self.world
-        near = self._apply_arm_action(action[:-1])
+        near, arm_leads = self._apply_arm_action(action[:-1])
         approach = (
             sum(
                 max(0.0, move - self.approach_allowance)
@@ -768,7 +768,7 @@ class InstrumentGraspEnv(gym.Env):
             world.gripper.command((action[-1] + 1.0) / 2.0 * MAX_OPENING)
         self._gripper_command = world.gripper.commanded_opening()
         if near and self.approach_guard_fingers:
-            self._guard_fingers(near)
+            self._guard_fingers(near, arm_leads)
 
         model, data, gripper = world.model, world.data, world.gripper
         # The pads' peaks as Python floats: this loop runs once per force sample (five times a
@@ -956,42 +956,45 @@ class InstrumentGraspEnv(gym.Env):
             f"y {low[1]:.3f}-{high[1]:.3f} m)"
         )
 
-    def _apply_arm_action(self, arm_action: np.ndarray) -> list:
-        """Set the arm's servos for ``arm_action``; the pads the approach guard watches this
-        step (see :meth:`_World.approach_directions`; none when it is off)."""
+    def _apply_arm_action(self, arm_action: np.ndarray) -> tuple[list, list | None]:
+        """Set the arm's servos for ``arm_action``: the pads the approach guard watches this
+        step (see :meth:`_World.approach_directions`; none when it is off) and their leads at
+        the set-point left (None where the set-point did not change)."""
         world = self.world
         if self.controller == "joint_delta":
             ctrl = world.arm_ctrl() + self.max_joint_delta * arm_action
             world.set_arm_ctrl(np.clip(ctrl, world.arm.lower, world.arm.upper))
-            return []
+            return [], None
         qpos = self._ee_set_point(arm_action)
-        near = []
+        near, leads = [], None
         if self.approach_lead_limit is not None:
             near = world.approach_directions(self.approach_distance, min_gap=GUARD_MIN_GAP)
             if qpos is not None:
-                qpos = self._guard_approach(arm_action, qpos, near)
+                qpos, leads = self._guard_approach(arm_action, qpos, near)
         if qpos is not None:
             world.set_arm_ctrl(qpos)
-        return near
+        return near, leads
 
     def _lead_limits(self, near) -> list[float]:
         """The lead (m) the approach guard allows each of the ``near`` pads."""
         return [self.approach_lead_limit + self.approach_lead_slope * gap for _, _, gap in near]
 
-    def _guard_approach(self, arm_action: np.ndarray, qpos: np.ndarray, near) -> np.ndarray | None:
+    def _guard_approach(
+        self, arm_action: np.ndarray, qpos: np.ndarray, near
+    ) -> tuple[np.ndarray | None, list | None]:
         """``qpos``, the set-point of ``arm_action``, or where it runs more than
         ``approach_lead_limit`` (plus ``approach_lead_slope`` times its gap) ahead of one of the
         ``near`` pads, the set-point of the same move shortened until it does not (to nothing:
-        hold the pose)."""
+        hold the pose); with the ``near`` pads' leads at it (None with the set-point)."""
         world = self.world
         limits = self._lead_limits(near)
         leads = world.pad_leads(near, qpos)
         if all(lead <= limit for lead, limit in zip(leads, limits, strict=True)):
-            return qpos
+            return qpos, leads
         self._guarded_steps += 1  # from here on the step is shortened or held
         held = self._ee_set_point(arm_action, scale=0.0)
         if held is None:
-            return None
+            return None, None
         held_leads = world.pad_leads(near, held)
         # Holding still leads a little (the set-point points the tool straight down, the
         # compliant arm tilts). A translation moves the pads rigidly, so each lead is linear in
@@ -1009,20 +1012,21 @@ class InstrumentGraspEnv(gym.Env):
             scale = shorter
             qpos = self._ee_set_point(arm_action, scale) if scale > 0.0 else held
             if qpos is None:
-                return held
-            leads = world.pad_leads(near, qpos)
+                return held, held_leads
+            leads = world.pad_leads(near, qpos) if scale > 0.0 else held_leads
             if all(
                 lead <= limit + GUARD_TOLERANCE for lead, limit in zip(leads, limits, strict=True)
             ):
                 break
-        return qpos
+        return qpos, leads
 
-    def _guard_fingers(self, near) -> None:
+    def _guard_fingers(self, near, arm_leads: list | None) -> None:
         """Shorten the servo target of each finger closing toward the instrument so that its
-        pad, carried also by the arm's set-point, leads no more than the approach guard
-        allows."""
+        pad, carried also by the arm's set-point (``arm_leads``, or None to measure them),
+        leads no more than the approach guard allows."""
         world, gripper = self.world, self.world.gripper
-        arm_leads = world.pad_leads(near, world.arm_ctrl())
+        if arm_leads is None:
+            arm_leads = world.pad_leads(near, world.arm_ctrl())
         closing = gripper.closing_directions()
         shortened = False
         for (pad, toward, _), arm_lead, limit in zip(
