@@ -7,7 +7,9 @@
     python train.py --resume runs/ViewPlanning-v0/ppo_seed0_20261121-101500 [-n 120000]
     python train.py --env InstrumentGrasp-v0 --algo sac \
         --init-from policies/InstrumentGrasp-v0/sac --env-kwargs servo_damping_ratio=0.7 \
-        --hyperparams demonstrations=null learning_rate=3e-5
+        force_penalty=2.0 failure_penalty=50 approach_lead_limit=0.00025 \
+        approach_lead_slope=0.3 approach_guard_fingers=true \
+        --hyperparams demonstrations=null start_curriculum=null learning_rate=3e-5
 
 Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id) or --config; each
 run writes a folder (see agents/run_folder.py) with its resolved config, models, checkpoints,
