@@ -904,6 +904,18 @@ def test_the_finger_guard_leaves_a_finger_what_the_arm_leaves_of_the_lead(monkey
     assert env.world.grasped()
 
 
+def test_the_finger_guard_takes_force_commands_up_to_the_speed_its_ramp_brakes_where_it_starts():
+    """The ramp allows 0.25 mm + 0.3 x 15 mm = 4.75 mm a step where the guard starts watching a
+    pad; force-commanded fingers close max_grip_force / 40 N s/m / 20 Hz a step: 3.7 N (4.6 mm)
+    is taken, 4 N (5 mm) refused."""
+    guarded = {**BRAKING_GUARD, "approach_guard_fingers": True, "gripper_control": "force"}
+    env = InstrumentGraspEnv(**guarded, max_grip_force=3.7)
+    assert env.approach_guard_fingers
+    env.close()
+    with pytest.raises(ValueError, match="5.00 mm a step; lower max_grip_force to at most 3.8 N"):
+        InstrumentGraspEnv(**guarded, max_grip_force=4.0)
+
+
 def test_the_finger_guard_shortens_the_servo_target_not_the_command_a_delta_gripper_adds_to():
     """A delta-commanded gripper closing on the handle under the finger guard: the observed
     commanded opening falls by max_gripper_delta every step, as asked, while the servos'
@@ -980,6 +992,26 @@ def test_the_finger_guard_shortens_the_servo_target_not_the_command_a_delta_grip
         (
             {"approach_guard_fingers": "yes", "approach_lead_limit": 0.001},
             r"approach_guard_fingers='yes' is not allowed; choose one of \[False, True\]",
+        ),
+        # Fingers that close farther in a step than the ramp allows at 15 mm (4.75 mm).
+        (
+            {**BRAKING_GUARD, "approach_guard_fingers": True},
+            "approach_guard_fingers=True cannot brake gripper_control='opening'",
+        ),
+        (
+            {**BRAKING_GUARD, "approach_guard_fingers": True, "gripper_control": "force"},
+            r"= 4.75 mm\); with gripper_control='force' a finger closes max_grip_force / 40 N "
+            r"s/m / control_hz = 25.00 mm a step; lower max_grip_force to at most 3.8 N",
+        ),
+        (
+            {
+                **BRAKING_GUARD,
+                "approach_guard_fingers": True,
+                "gripper_control": "delta",
+                "max_gripper_delta": 0.02,
+            },
+            "a finger closes max_gripper_delta / 2 = 10.00 mm a step; lower max_gripper_delta "
+            "to at most 0.0095 m",
         ),
         # An array is not a choice: one element passed as it, more raised numpy's error.
         ({"controller": np.array(["ee_delta"])}, r"controller=array\(\['ee_delta'\].* choose"),

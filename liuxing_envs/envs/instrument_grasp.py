@@ -15,6 +15,7 @@ from liuxing_envs.opengl import new_renderer, require_opengl
 from liuxing_envs.sim.arm import Arm
 from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
 from liuxing_envs.sim.gripper import (
+    FORCE_COMMAND_DAMPING,
     GRASP_NOSLIP_ITERATIONS,
     MAX_OPENING,
     SERVO_FORCE_LIMIT,
@@ -224,6 +225,47 @@ def tool_down(yaw: float) -> np.ndarray:
     return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
 
 
+def _require_guardable_fingers(
+    gripper_control: str,
+    max_grip_force: float,
+    max_gripper_delta: float,
+    control_hz: float,
+    allowance_at_entry: float,
+) -> None:
+    """Refuse a finger guard that a closing finger can outrun. The guard watches a pad from
+    ``approach_distance`` of the instrument in; a finger that closes farther in one control
+    step than the ramp allows there (``allowance_at_entry``, m) enters that band too fast to
+    be braked, or crosses it within the step, and lands as hard as unguarded."""
+    if gripper_control == "opening":
+        raise ValueError(
+            "approach_guard_fingers=True cannot brake gripper_control='opening': its position "
+            "servos close the whole stroke within one control step (up to about 2 m/s); use "
+            "gripper_control='force' or 'delta'"
+        )
+    if gripper_control == "force":
+        travel = max_grip_force / FORCE_COMMAND_DAMPING / control_hz
+        setting = (
+            f"with gripper_control='force' a finger closes max_grip_force / "
+            f"{FORCE_COMMAND_DAMPING:g} N s/m / control_hz = {1e3 * travel:.2f} mm a step; "
+            f"lower max_grip_force to at most "
+            f"{allowance_at_entry * FORCE_COMMAND_DAMPING * control_hz:.3g} N"
+        )
+    else:
+        travel = 0.5 * max_gripper_delta  # the opening is both fingers' travel
+        setting = (
+            f"with gripper_control='delta' a finger closes max_gripper_delta / 2 = "
+            f"{1e3 * travel:.2f} mm a step; lower max_gripper_delta to at most "
+            f"{2 * allowance_at_entry:.3g} m"
+        )
+    if travel > allowance_at_entry:
+        raise ValueError(
+            "approach_guard_fingers=True needs fingers that close no farther in one control "
+            "step than the guard allows where it starts watching a pad (approach_lead_limit + "
+            f"approach_lead_slope x approach_distance = {1e3 * allowance_at_entry:.2f} mm); "
+            f"{setting}, or raise approach_lead_slope or approach_distance"
+        )
+
+
 class InstrumentGraspEnv(gym.Env):
     """Pick a surgical instrument off a tray without squeezing or striking it too hard.
 
@@ -294,7 +336,15 @@ class InstrumentGraspEnv(gym.Env):
     pass the hard limit. Jaws open 6 cm across a handle and closed with the arm held
     (``max_grip_force=3``, ``arm_stiffness=0.1``, 0.25 mm + 0.3 x gap) land with 1.2 N
     instead of 3.9 N, five steps later, and grip. The observation's commanded opening stays
-    the action's. The guard, on the arm or the fingers, reads the instrument's geometry from
+    the action's. Fingers must close no farther in a control step than the ramp allows where
+    the guard starts watching a pad (``approach_lead_limit`` + ``approach_lead_slope`` x
+    ``approach_distance``), or they would enter that band too fast to brake, or cross it
+    within the step: ``gripper_control="opening"`` is refused (its servos close the whole
+    stroke within a step), and so are force commands above that speed (3 N at 20 Hz closes
+    3.75 mm a step; the default 20 N, 25 mm) and delta steps above twice it. With ``"delta"``
+    the command goes on adding up while a finger is held back, and once its pad touches, that
+    finger's target is the whole command: the guard softens the landing, not the squeeze
+    after it. The guard, on the arm or the fingers, reads the instrument's geometry from
     the simulator: privileged, as the ``instrument`` observation is (a real cell would
     measure those gaps itself).
 
@@ -323,7 +373,8 @@ class InstrumentGraspEnv(gym.Env):
                                 pad opening and commanded opening (2, m; the action's,
                                 before ``approach_guard_fingers`` shortens it; with
                                 ``gripper_control="force"`` the command is the servos'
-                                end of travel: 0 while closing, 0.08 while opening)
+                                end of travel: 0 while closing, 0.08 while opening; after
+                                a reset or a protective stop, the opening it left)
     ``forces``      (2,)        left and right fingertip normal force (N): the pads' touch
                                 sensors, i.e. every contact on a pad (instrument, tray, ...)
     ``instrument``  (14,)       ``obs_mode="state"`` only, PRIVILEGED: grasp-point position
@@ -463,7 +514,10 @@ class InstrumentGraspEnv(gym.Env):
     (None, off, so default episodes are unchanged), then ``approach_lead_slope`` (0, so
     episodes with a constant limit are unchanged too) and ``info["guarded_steps"]``; then
     ``approach_guard_fingers`` (False, so episodes without it are unchanged) and
-    ``info["guarded_finger_steps"]``.
+    ``info["guarded_finger_steps"]``. Fixed within v0 (2026-11-28): ``approach_guard_fingers``
+    took gripper settings whose fingers outrun it (``"opening"``, the default 20 N force
+    commands), where a pad crossed the guarded band within one step; they are now refused by
+    name (the shipped policy's 3 N force commands pass).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -574,6 +628,14 @@ class InstrumentGraspEnv(gym.Env):
                 "approach_guard_fingers=True widens the approach guard, which "
                 "approach_lead_limit turns on; set approach_lead_limit too (the lead allowed at "
                 "a touch, m; controller='ee_delta' only)"
+            )
+        if approach_guard_fingers:
+            _require_guardable_fingers(
+                gripper_control,
+                max_grip_force,
+                max_gripper_delta,
+                control_hz,
+                approach_lead_limit + approach_lead_slope * approach_distance,
             )
         require_int("resolution", resolution, 8, 512)
         require_int("episode_steps", episode_steps, 1, 100_000)
