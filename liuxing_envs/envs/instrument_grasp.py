@@ -344,9 +344,16 @@ class InstrumentGraspEnv(gym.Env):
     3.75 mm a step; the default 20 N, 25 mm) and delta steps above twice it. With ``"delta"``
     the command goes on adding up while a finger is held back, and once its pad touches, that
     finger's target is the whole command: the guard softens the landing, not the squeeze
-    after it. The guard, on the arm or the fingers, reads the instrument's geometry from
-    the simulator: privileged, as the ``instrument`` observation is (a real cell would
-    measure those gaps itself).
+    after it. Fingers, like the arm, are judged by each pad's direction to the instrument's
+    nearest point, and a pad nearer than 10 µm counts as touching: jaws reset low over the
+    instrument (``tool_start``) can leave a pad a hair above one part, with no contact, while
+    its finger closes sideways into another part beside it, unbraked (closed at 3 N with the
+    arm held, a hemostat and scissors struck 16-17 N, a protective stop). Braking toward
+    every part near a pad instead ended those, but the shipped policy, trained under this
+    rule, then lifted in 62% and 74% of 600 episodes, with 3 and 2 stops (not adopted;
+    ``docs/training_notes.md``). The guard, on the arm or the fingers, reads the
+    instrument's geometry from the simulator: privileged, as the ``instrument`` observation
+    is (a real cell would measure those gaps itself).
 
     An ``ee_delta`` action moves the set-point, from where the tool is: the tool follows
     within the step only as far as the servos take it, and not exactly along the action's
