@@ -129,7 +129,10 @@ def main(argv: list[str] | None = None) -> int:
                 if getattr(args, name) is not None
             ]
             if given:
-                parser.error(f"{', '.join(given)} cannot be changed when resuming a run")
+                parser.error(
+                    f"{', '.join(given)} cannot be given with --resume: a resumed run keeps "
+                    "the settings in its config.yml"
+                )
             training.resume(
                 args.resume,
                 n_timesteps=args.timesteps,

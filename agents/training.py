@@ -154,6 +154,7 @@ def resolve_config(
     require_known("algorithm", algo, ALGOS)
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
     _refuse_env_kwargs_given_twice(hyperparams or {}, env_kwargs or {})
+    _refuse_counts_given_twice(hyperparams or {}, n_timesteps=n_timesteps, n_envs=n_envs)
     merged = deep_update(default_hyperparams(algo, env_id, config_file), hyperparams or {})
     harness, algo_kwargs = split_hyperparams(merged, ALGO_CLASSES[algo])
     for key in ("env_kwargs", "eval_env_kwargs"):
@@ -276,6 +277,22 @@ def _refuse_env_kwargs_given_twice(hyperparams: Mapping, env_kwargs: Mapping) ->
             f"env kwargs {given_twice} are given both in --hyperparams env_kwargs and in "
             "--env-kwargs; give each setting once"
         )
+
+
+#: The run's counts that have a flag of their own besides --hyperparams.
+COUNT_FLAGS = {"n_timesteps": "-n/--timesteps", "n_envs": "--n-envs"}
+
+
+def _refuse_counts_given_twice(hyperparams: Mapping, **counts) -> None:
+    """ConfigError for a count given in both --hyperparams and its own flag: the flag would
+    win silently, and the other value would go unchecked."""
+    given_twice = [
+        f"{key} (--hyperparams {key}={hyperparams[key]!r} and {COUNT_FLAGS[key]} {value})"
+        for key, value in counts.items()
+        if value is not None and key in hyperparams
+    ]
+    if given_twice:
+        raise ConfigError(f"{', '.join(given_twice)} given twice; give it once, in either")
 
 
 def _leaf_paths(settings: Mapping, prefix: tuple[str, ...] = ()):
