@@ -179,7 +179,11 @@ HYPERPARAM_RANGES = {
     "gradient_steps": (-1, np.inf),  # -1: as many as env steps
     "target_update_interval": (1, np.inf),
     "stats_window_size": (1, np.inf),
+    "sde_sample_freq": (-1, np.inf),  # -1: once per rollout
 }
+#: SAC's hyper-parameters that take "auto" (``ent_coef`` also ``auto_<initial value>``) or a
+#: number.
+AUTO_OR_NUMBER = ("ent_coef", "target_entropy")
 #: Algorithm kwargs that train.py sets from its own flags.
 SET_BY_FLAGS = {"seed": "--seed", "device": "--device", "tensorboard_log": "--tensorboard"}
 
@@ -216,11 +220,21 @@ def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
     if key == "train_freq" and isinstance(value, (list, tuple)):
         check_train_freq_pair(algo_name, value)
         return
+    if key.endswith("_class") and value is not None:
+        raise ConfigError(
+            f"{algo_name} hyper-parameter {key} takes a Python class, which a hyper-parameter "
+            f"file cannot name; leave it out (SB3's default), got {value!r}"
+        )
     if isinstance(value, (list, tuple, dict)) or (value is None and default is None):
         return
     if key in SCHEDULED and isinstance(value, str):
         linear_schedule_start(key, value, algo_name)
         return
+    if key in AUTO_OR_NUMBER and isinstance(default, str):
+        if isinstance(value, str):
+            _check_auto(algo_name, key, value)
+            return
+        default = 0.0  # a number, checked as one below
     if default is None:
         if key not in OPTIONAL_NUMBERS:
             return
@@ -243,6 +257,22 @@ def check_hyperparam_value(algo_name: str, key: str, value, default) -> None:
             raise ConfigError(
                 f"{algo_name} hyper-parameter {key} must be in [{low}, {high}], got {value!r}"
             )
+
+
+def _check_auto(algo_name: str, key: str, value: str) -> None:
+    """``auto``, or for ``ent_coef`` also ``auto_<initial value > 0>``, or a ConfigError."""
+    initial = np.nan
+    if key == "ent_coef" and value.startswith("auto_"):
+        try:
+            initial = float(value[len("auto_") :])
+        except ValueError:
+            pass
+    if value == "auto" or (np.isfinite(initial) and initial > 0):
+        return
+    forms = "'auto', 'auto_<initial value > 0>' or a number >= 0"
+    if key != "ent_coef":
+        forms = "'auto' or a number"
+    raise ConfigError(f"{algo_name} hyper-parameter {key} must be {forms}, got {value!r}")
 
 
 #: The units of SB3's ``train_freq: [n, unit]``.

@@ -145,3 +145,10 @@ class PerceptionExtractor(BaseFeaturesExtractor):
 FEATURES_EXTRACTORS = {"perception": PerceptionExtractor, "combined": CombinedExtractor}
 #: Names a hyper-parameter file may give as ``policy_kwargs.activation_fn``.
 ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}
+#: Names a hyper-parameter file may give as ``policy_kwargs.optimizer_class``.
+OPTIMIZERS = {
+    "adam": torch.optim.Adam,
+    "adamw": torch.optim.AdamW,
+    "rmsprop": torch.optim.RMSprop,
+    "sgd": torch.optim.SGD,
+}

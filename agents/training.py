@@ -69,7 +69,7 @@ from agents.evaluation import (
     task_for,
 )
 from agents.plotting import plot_learning_curve
-from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS
+from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS, OPTIMIZERS
 from agents.spaces import describe_space, mismatched_spaces
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 from liuxing_envs.validation import is_number
@@ -360,13 +360,20 @@ def check_policy_kwarg_names(algo: str, policy: str, named: Mapping) -> None:
 
 
 def policy_kwargs(named: Mapping | None) -> dict:
-    """The YAML's ``policy_kwargs`` with class names (features extractor, activation)
-    replaced by the classes they name."""
+    """The YAML's ``policy_kwargs`` with class names (features extractor, activation,
+    optimizer) replaced by the classes they name."""
     if named is not None and not isinstance(named, Mapping):
         raise ConfigError(
             f"policy_kwargs must be a mapping (policy_kwargs.net_arch=[64, 64]), got {named!r}"
         )
     kwargs = dict(named or {})
+    classes = sorted(key for key in kwargs if key.endswith("_class") and key != "optimizer_class")
+    if classes:
+        raise ConfigError(
+            f"policy_kwargs {classes} take Python classes, which a hyper-parameter file cannot "
+            "name; give policy_kwargs.features_extractor, activation_fn or optimizer_class by "
+            "name instead"
+        )
     if "features_extractor" in kwargs:
         name = kwargs.pop("features_extractor")
         kwargs["features_extractor_class"] = FEATURES_EXTRACTORS[
@@ -377,6 +384,9 @@ def policy_kwargs(named: Mapping | None) -> dict:
         kwargs["activation_fn"] = ACTIVATIONS[
             require_known("activation function", name, tuple(ACTIVATIONS))
         ]
+    if "optimizer_class" in kwargs:
+        name = kwargs["optimizer_class"]
+        kwargs["optimizer_class"] = OPTIMIZERS[require_known("optimizer", name, tuple(OPTIMIZERS))]
     return kwargs
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import yaml
 from stable_baselines3 import PPO
 from stable_baselines3.common.logger import Logger
@@ -113,6 +114,17 @@ def test_two_flags_may_set_different_fields_of_one_env_kwarg():
     )
     assert config["env_kwargs"]["depth_noise"] == {"sigma_base": 0.001, "dropout_prob": 0.05}
     assert config["env_kwargs"]["view_budget"] == 5
+
+
+def test_named_optimizers_and_automatic_entropy_settings_are_taken():
+    assert training.policy_kwargs({"optimizer_class": "rmsprop"})["optimizer_class"] is (
+        torch.optim.RMSprop
+    )
+    config = training.resolve_config(
+        algo="sac", hyperparams={"ent_coef": "auto_0.1", "target_entropy": -2.0}
+    )
+    assert config["hyperparams"]["ent_coef"] == "auto_0.1"
+    assert config["hyperparams"]["target_entropy"] == -2.0
 
 
 def test_the_default_run_is_the_one_the_readme_describes():
@@ -215,6 +227,25 @@ def test_a_python_expression_stays_a_string():
         (
             ["--hyperparams", "policy_kwargs.activation_fn=[[1]]"],
             "unknown activation function [[1]]",
+        ),
+        (
+            ["--hyperparams", "policy_kwargs.optimizer_class=sgdd"],
+            "unknown optimizer 'sgdd' (did you mean 'sgd'?); allowed: adam, adamw, rmsprop, sgd",
+        ),
+        (
+            ["--hyperparams", "policy_kwargs.features_extractor_class=perception"],
+            "policy_kwargs ['features_extractor_class'] take Python classes",
+        ),
+        (["--hyperparams", "rollout_buffer_class=Foo"], "rollout_buffer_class takes a Python"),
+        (["--hyperparams", "sde_sample_freq=-5"], "sde_sample_freq must be in [-1, inf]"),
+        (["--algo", "sac", "--hyperparams", "ent_coef=-0.1"], "ent_coef must be in [0.0, inf]"),
+        (
+            ["--algo", "sac", "--hyperparams", "ent_coef=auto_x"],
+            "ent_coef must be 'auto', 'auto_<initial value > 0>' or a number >= 0, got 'auto_x'",
+        ),
+        (
+            ["--algo", "sac", "--hyperparams", "target_entropy=abc"],
+            "target_entropy must be 'auto' or a number, got 'abc'",
         ),
         (
             ["--hyperparams", "policy_kwargs.net_arch.vf=[256]"],
