@@ -120,6 +120,27 @@ def require_known(kind: str, name: str, allowed: Sequence[str]) -> str:
     return name
 
 
+def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
+    """Unknown keyword names fail here, with a suggestion; values are checked by the env."""
+    import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
+
+    import liuxing_envs  # noqa: F401  (registers the ids)
+
+    env_class = load_env_creator(gym.spec(env_id).entry_point)
+    accepted = [
+        name
+        for name, parameter in inspect.signature(env_class.__init__).parameters.items()
+        if parameter.kind is inspect.Parameter.KEYWORD_ONLY
+    ]
+    for name in env_kwargs:
+        if name not in accepted:
+            raise ConfigError(
+                f"unknown env kwarg {name!r} for {env_id}{closest(name, accepted)}; "
+                f"allowed: {', '.join(accepted)}"
+            )
+
+
 def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
     """``["a=1", "b.c=[64, 64]"]`` -> ``{"a": 1, "b": {"c": [64, 64]}}``.
 

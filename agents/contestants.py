@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agents import run_folder
-from agents.config import closest, require_known
+from agents.config import check_env_kwargs, closest, require_known
 from agents.evaluation import HELD_OUT_SPLIT, SB3Policy, make_env, task_for
 from agents.grasp_baselines import GRASP_BASELINES
 from agents.spaces import describe_space, same_space
-from agents.training import ALGO_CLASSES, check_env_kwargs
+from agents.training import ALGO_CLASSES
 from agents.view_baselines import BASELINES as VIEW_BASELINES
 
 #: Baselines by environment. ``greedy-oracle`` reads the ground truth: reported as a

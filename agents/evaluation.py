@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import run_folder
-from agents.config import ConfigError
+from agents.config import ConfigError, check_env_kwargs
 from agents.grasp_baselines import ScriptedGrasp
 from agents.spaces import describe_space, same_space
 from agents.statistics import bootstrap_ci, interval_text, wilson_interval
@@ -115,6 +115,7 @@ def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
     import liuxing_envs  # noqa: F401  (registers the ids)
 
     env_kwargs = dict(env_kwargs or {})
+    check_env_kwargs(env_id, env_kwargs)  # a name misspelt in a run's config.yml, say
     length_kwarg = EPISODE_LENGTH_KWARGS.get(env_id)
     if length_kwarg in env_kwargs:
         make_kwargs.setdefault("max_episode_steps", env_kwargs[length_kwarg])

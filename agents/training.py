@@ -25,7 +25,6 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import torch
-from gymnasium.envs.registration import load_env_creator
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
@@ -43,6 +42,7 @@ from agents.config import (
     MAX_SEED,
     SCHEDULED,
     ConfigError,
+    check_env_kwargs,
     check_net_arch,
     closest,
     deep_update,
@@ -304,22 +304,6 @@ def _leaf_paths(settings: Mapping, prefix: tuple[str, ...] = ()):
             yield from _leaf_paths(value, path)
         else:
             yield path
-
-
-def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
-    """Unknown keyword names fail here, with a suggestion; values are checked by the env."""
-    env_class = load_env_creator(gym.spec(env_id).entry_point)
-    accepted = [
-        name
-        for name, parameter in inspect.signature(env_class.__init__).parameters.items()
-        if parameter.kind is inspect.Parameter.KEYWORD_ONLY
-    ]
-    for name in env_kwargs:
-        if name not in accepted:
-            raise ConfigError(
-                f"unknown env kwarg {name!r} for {env_id}{closest(name, accepted)}; "
-                f"allowed: {', '.join(accepted)}"
-            )
 
 
 def check_device(device: str) -> str:

@@ -715,6 +715,24 @@ def test_seeds_of_one_configuration_compare_equal_across_config_versions():
     assert _training_settings(other) != _training_settings(config)
 
 
+def test_a_misspelt_env_kwarg_in_a_run_config_is_named_with_a_suggestion(tmp_path, capsys):
+    """A hand-edited config.yml with ``obs_mod`` used to reach the env's bare TypeError."""
+    run = tmp_path / "run"
+    shutil.copytree(REPO / "policies" / "InstrumentGrasp-v0" / "sac", run)
+    config = (run / "config.yml").read_text()
+    (run / "config.yml").write_text(config.replace("  obs_mode: state", "  obs_mod: state"))
+    import evaluate
+
+    with pytest.raises(SystemExit) as exit_info:
+        evaluate.main(
+            [str(run), "--baselines", "none", "--episodes", "1", "--out", str(tmp_path / "out")]
+        )
+    assert exit_info.value.code == 2
+    assert "unknown env kwarg 'obs_mod' for InstrumentGrasp-v0 (did you mean 'obs_mode'?)" in (
+        capsys.readouterr().err
+    )
+
+
 @pytest.mark.parametrize(
     "env_id, length_kwarg",
     [("ViewPlanning-v0", "view_budget"), ("InstrumentGrasp-v0", "episode_steps")],
