@@ -98,10 +98,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="ViewPlanning episodes per contestant scored by reconstruction (~2 s each)",
     )
     report.add_argument(
-        "--save-reconstructions", type=int, default=3, help="of those, how many to save as .ply"
+        "--save-reconstructions",
+        type=int,
+        help="of those, how many to save as .ply (default: 3)",
     )
     report.add_argument("--video", action="store_true", help="write mp4 videos of a few episodes")
-    report.add_argument("--video-episodes", type=int, default=2, help="episodes per video")
+    report.add_argument(
+        "--video-episodes", type=int, help="episodes per video, with --video (default: 2)"
+    )
     report.add_argument(
         "--progress-bar",
         action=argparse.BooleanOptionalAction,
@@ -114,6 +118,16 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    # Flags that only shape another flag's output are refused where they would do nothing.
+    if args.video_episodes is not None and not args.video:
+        parser.error("--video-episodes sets how many episodes each video shows; add --video")
+    if args.save_reconstructions is not None and args.reconstruct_episodes == 0:
+        parser.error(
+            "--save-reconstructions saves some of the --reconstruct-episodes, which is 0 here"
+        )
+    args.video_episodes = 2 if args.video_episodes is None else args.video_episodes
+    if args.save_reconstructions is None:
+        args.save_reconstructions = 3
     for flag in ("episodes", "video_episodes"):
         if getattr(args, flag) < 1:
             parser.error(f"--{flag.replace('_', '-')} must be at least 1")

@@ -327,6 +327,11 @@ def build_contestants(
                 source, env_id=env_id, algo=algo, best=best, raw_observations=raw_observations
             )
         )
+    twice = sorted(set(named_baselines) & set(baselines or ()))
+    if twice:  # it would run once, silently, where the command line asks for it twice
+        raise ContestantError(
+            f"{', '.join(twice)} is given both as a contestant and in --baselines; give it once"
+        )
     env_ids = list(dict.fromkeys(c.env_id for c in contestants))
     uses_env = named_baselines or any(c.config is None for c in contestants)  # lone zips
     if env_id is not None and env_ids and env_id not in env_ids and not uses_env:

@@ -442,6 +442,10 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "'squeeze' is given more than once",
         ),
         (
+            ["--env", "ViewPlanning-v0", "four-view", "--baselines", "four-view"],
+            "four-view is given both as a contestant and in --baselines; give it once",
+        ),
+        (
             ["policies/ViewPlanning-v0/ppo", "policies/ViewPlanning-v0/ppo/"],
             "'policies/ViewPlanning-v0/ppo/' is given more than once",
         ),
@@ -458,6 +462,18 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "did you mean 'view_budget'",
         ),
         (["--env", "ViewPlanning-v0", "--episodes", "0"], "--episodes must be at least 1"),
+        (["--env", "ViewPlanning-v0", "--video-episodes", "3"], "add --video"),
+        (
+            [
+                "--env",
+                "ViewPlanning-v0",
+                "--reconstruct-episodes",
+                "0",
+                "--save-reconstructions",
+                "3",
+            ],
+            "--reconstruct-episodes, which is 0 here",
+        ),
         (["--env", "ViewPlanning-v0", "--seed", "-1"], "--seed must be 0 or more"),
         (
             ["--env", "InstrumentGrasp-v0", "--seed", str(2**64), "--episodes", "1"],
