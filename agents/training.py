@@ -334,7 +334,10 @@ def check_policy_kwarg_names(algo: str, policy: str, named: Mapping) -> None:
     policy_class = ALGO_CLASSES[algo].policy_aliases[policy]
     taken = inspect.signature(policy_class.__init__).parameters
     set_by_sb3 = {"self", "observation_space", "action_space", "lr_schedule"}
-    allowed = sorted({*taken, *POLICY_KWARG_ALIASES} - set_by_sb3)
+    # Classes are named by their aliases (features_extractor); only the optimizer is named
+    # under its own key.
+    unnamed_classes = {name for name in taken if name.endswith("_class")} - {"optimizer_class"}
+    allowed = sorted({*taken, *POLICY_KWARG_ALIASES} - set_by_sb3 - unnamed_classes)
     for name in named:
         if name not in allowed:
             raise ConfigError(

@@ -912,7 +912,7 @@ def test_the_finger_guard_takes_force_commands_up_to_the_speed_its_ramp_brakes_w
     env = InstrumentGraspEnv(**guarded, max_grip_force=3.7)
     assert env.approach_guard_fingers
     env.close()
-    with pytest.raises(ValueError, match="5.00 mm a step; lower max_grip_force to at most 3.8 N"):
+    with pytest.raises(ValueError, match="5.00 mm a step: lower max_grip_force to at most 3.8 N"):
         InstrumentGraspEnv(**guarded, max_grip_force=4.0)
 
 
@@ -1001,7 +1001,18 @@ def test_the_finger_guard_shortens_the_servo_target_not_the_command_a_delta_grip
         (
             {**BRAKING_GUARD, "approach_guard_fingers": True, "gripper_control": "force"},
             r"= 4.75 mm\); with gripper_control='force' a finger closes max_grip_force / 40 N "
-            r"s/m / control_hz = 25.00 mm a step; lower max_grip_force to at most 3.8 N",
+            r"s/m / control_hz = 25.00 mm a step: lower max_grip_force to at most 3.8 N, or raise "
+            r"approach_lead_limit or approach_lead_slope",
+        ),
+        (
+            {
+                "approach_lead_limit": 0.0,
+                "approach_guard_fingers": True,
+                "gripper_control": "force",
+            },
+            r"= 0.00 mm\); with gripper_control='force' a finger closes max_grip_force / 40 N "
+            r"s/m / control_hz = 25.00 mm a step: raise approach_lead_limit or "
+            r"approach_lead_slope$",
         ),
         (
             {
@@ -1010,7 +1021,7 @@ def test_the_finger_guard_shortens_the_servo_target_not_the_command_a_delta_grip
                 "gripper_control": "delta",
                 "max_gripper_delta": 0.02,
             },
-            "a finger closes max_gripper_delta / 2 = 10.00 mm a step; lower max_gripper_delta "
+            "a finger closes max_gripper_delta / 2 = 10.00 mm a step: lower max_gripper_delta "
             "to at most 0.0095 m",
         ),
         # An array is not a choice: one element passed as it, more raised numpy's error.

@@ -246,23 +246,26 @@ def _require_guardable_fingers(
         travel = max_grip_force / FORCE_COMMAND_DAMPING / control_hz
         setting = (
             f"with gripper_control='force' a finger closes max_grip_force / "
-            f"{FORCE_COMMAND_DAMPING:g} N s/m / control_hz = {1e3 * travel:.2f} mm a step; "
-            f"lower max_grip_force to at most "
-            f"{allowance_at_entry * FORCE_COMMAND_DAMPING * control_hz:.3g} N"
+            f"{FORCE_COMMAND_DAMPING:g} N s/m / control_hz = {1e3 * travel:.2f} mm a step"
         )
+        fits = allowance_at_entry * FORCE_COMMAND_DAMPING * control_hz
+        lower = f"lower max_grip_force to at most {fits:.3g} N" if fits >= 0.1 else None
     else:
         travel = 0.5 * max_gripper_delta  # the opening is both fingers' travel
         setting = (
             f"with gripper_control='delta' a finger closes max_gripper_delta / 2 = "
-            f"{1e3 * travel:.2f} mm a step; lower max_gripper_delta to at most "
-            f"{2 * allowance_at_entry:.3g} m"
+            f"{1e3 * travel:.2f} mm a step"
         )
+        fits = 2 * allowance_at_entry
+        lower = f"lower max_gripper_delta to at most {fits:.3g} m" if fits >= 1e-4 else None
     if travel > allowance_at_entry:
+        remedies = [lower] if lower else []
+        remedies.append("raise approach_lead_limit or approach_lead_slope")
         raise ValueError(
             "approach_guard_fingers=True needs fingers that close no farther in one control "
             "step than the guard allows where it starts watching a pad (approach_lead_limit + "
             f"approach_lead_slope x approach_distance = {1e3 * allowance_at_entry:.2f} mm); "
-            f"{setting}, or raise approach_lead_slope or approach_distance"
+            f"{setting}: {', or '.join(remedies)}"
         )
 
 
