@@ -94,8 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument(
         "--reconstruct-episodes",
         type=int,
-        default=20,
-        help="ViewPlanning episodes per contestant scored by reconstruction (~2 s each)",
+        help="ViewPlanning episodes per contestant scored by reconstruction (~2 s each; "
+        "default: 20)",
     )
     report.add_argument(
         "--save-reconstructions",
@@ -125,7 +125,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(
             "--save-reconstructions saves some of the --reconstruct-episodes, which is 0 here"
         )
-    args.video_episodes = 2 if args.video_episodes is None else args.video_episodes
+    if args.final_model and not any(os.path.isdir(source) for source in args.sources):
+        parser.error("--final-model picks a run folder's final model; no source is a run folder")
+    reconstruction_flags = [  # those that ask for reconstructions
+        f"--{flag.replace('_', '-')}"
+        for flag in ("reconstruct_episodes", "save_reconstructions")
+        if getattr(args, flag) is not None and getattr(args, flag) > 0
+    ]
+    for flag, default in (("video_episodes", 2), ("reconstruct_episodes", 20)):
+        if getattr(args, flag) is None:
+            setattr(args, flag, default)
     if args.save_reconstructions is None:
         args.save_reconstructions = 3
     for flag in ("episodes", "video_episodes"):
@@ -175,6 +184,11 @@ def main(argv: list[str] | None = None) -> int:
             best=not args.final_model,
             raw_observations=args.raw_observations,
         )
+        if reconstruction_flags and all(c.env_id != "ViewPlanning-v0" for c in contestants):
+            parser.error(
+                f"{' and '.join(reconstruction_flags)} score ViewPlanning-v0 episodes by "
+                "reconstruction; no contestant here runs ViewPlanning-v0"
+            )
         settings = report.Settings(
             episodes=args.episodes,
             seed=args.seed,

@@ -464,6 +464,14 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
         (["--env", "ViewPlanning-v0", "--episodes", "0"], "--episodes must be at least 1"),
         (["--env", "ViewPlanning-v0", "--video-episodes", "3"], "add --video"),
         (
+            ["--env", "InstrumentGrasp-v0", "squeeze", "--save-reconstructions", "2"],
+            "--save-reconstructions score ViewPlanning-v0 episodes by reconstruction; no",
+        ),
+        (
+            ["--env", "ViewPlanning-v0", "four-view", "--final-model"],
+            "--final-model picks a run folder's final model; no source is a run folder",
+        ),
+        (
             [
                 "--env",
                 "ViewPlanning-v0",
