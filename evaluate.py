@@ -132,11 +132,13 @@ def main(argv: list[str] | None = None) -> int:
         for flag in ("reconstruct_episodes", "save_reconstructions")
         if getattr(args, flag) is not None and getattr(args, flag) > 0
     ]
-    for flag, default in (("video_episodes", 2), ("reconstruct_episodes", 20)):
+    for flag, default in (
+        ("video_episodes", 2),
+        ("reconstruct_episodes", 20),
+        ("save_reconstructions", 3),
+    ):
         if getattr(args, flag) is None:
             setattr(args, flag, default)
-    if args.save_reconstructions is None:
-        args.save_reconstructions = 3
     for flag in ("episodes", "video_episodes"):
         if getattr(args, flag) < 1:
             parser.error(f"--{flag.replace('_', '-')} must be at least 1")

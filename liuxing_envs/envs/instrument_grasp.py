@@ -124,6 +124,9 @@ REWARD_TERMS = (
 DEFAULT_MAX_TRANSLATION = 0.02  # m per control step at |action| = 1
 DEFAULT_MAX_YAW = 0.2  # rad per control step
 DEFAULT_MAX_JOINT_DELTA = 0.05  # rad per control step
+#: The smallest ``max_gripper_delta`` (m) and ``max_grip_force`` (N) taken.
+MIN_GRIPPER_DELTA = 1e-4
+MIN_GRIP_FORCE = 0.1
 #: With gripper_control="delta": the most the commanded opening moves per control step (m).
 #: A pad servo pushes about 2.5 N per mm its command runs ahead of the pad, so a gentle
 #: grasp needs command steps of a fraction of a millimetre: 0.1 of this one.
@@ -243,30 +246,26 @@ def _require_guardable_fingers(
             "gripper_control='force' or 'delta'"
         )
     if gripper_control == "force":
-        travel = max_grip_force / FORCE_COMMAND_DAMPING / control_hz
-        setting = (
-            f"with gripper_control='force' a finger closes max_grip_force / "
-            f"{FORCE_COMMAND_DAMPING:g} N s/m / control_hz = {1e3 * travel:.2f} mm a step"
-        )
-        fits = allowance_at_entry * FORCE_COMMAND_DAMPING * control_hz
-        lower = f"lower max_grip_force to at most {fits:.3g} N" if fits >= 0.1 else None
+        knob, value, unit, minimum = "max_grip_force", max_grip_force, "N", MIN_GRIP_FORCE
+        per_unit = 1.0 / (FORCE_COMMAND_DAMPING * control_hz)  # m a step per N
+        travel_of = f"max_grip_force / {FORCE_COMMAND_DAMPING:g} N s/m / control_hz"
     else:
-        travel = 0.5 * max_gripper_delta  # the opening is both fingers' travel
-        setting = (
-            f"with gripper_control='delta' a finger closes max_gripper_delta / 2 = "
-            f"{1e3 * travel:.2f} mm a step"
-        )
-        fits = 2 * allowance_at_entry
-        lower = f"lower max_gripper_delta to at most {fits:.3g} m" if fits >= 1e-4 else None
-    if travel > allowance_at_entry:
-        remedies = [lower] if lower else []
-        remedies.append("raise approach_lead_limit or approach_lead_slope")
-        raise ValueError(
-            "approach_guard_fingers=True needs fingers that close no farther in one control "
-            "step than the guard allows where it starts watching a pad (approach_lead_limit + "
-            f"approach_lead_slope x approach_distance = {1e3 * allowance_at_entry:.2f} mm); "
-            f"{setting}: {', or '.join(remedies)}"
-        )
+        knob, value, unit, minimum = "max_gripper_delta", max_gripper_delta, "m", MIN_GRIPPER_DELTA
+        per_unit = 0.5  # the opening is both fingers' travel
+        travel_of = "max_gripper_delta / 2"
+    travel = value * per_unit
+    if travel <= allowance_at_entry:
+        return
+    fits = allowance_at_entry / per_unit
+    remedies = [f"lower {knob} to at most {fits:.3g} {unit}"] if fits >= minimum else []
+    remedies.append("raise approach_lead_limit or approach_lead_slope")
+    raise ValueError(
+        "approach_guard_fingers=True needs fingers that close no farther in one control "
+        "step than the guard allows where it starts watching a pad (approach_lead_limit + "
+        f"approach_lead_slope x approach_distance = {1e3 * allowance_at_entry:.2f} mm); "
+        f"with gripper_control={gripper_control!r} a finger closes {travel_of} = "
+        f"{1e3 * travel:.2f} mm a step: {', or '.join(remedies)}"
+    )
 
 
 class InstrumentGraspEnv(gym.Env):
@@ -611,8 +610,8 @@ class InstrumentGraspEnv(gym.Env):
             ("max_translation", max_translation, 1e-4, 0.1),
             ("max_yaw", max_yaw, 0.0, 1.0),
             ("max_joint_delta", max_joint_delta, 1e-4, 0.5),
-            ("max_gripper_delta", max_gripper_delta, 1e-4, MAX_OPENING),
-            ("max_grip_force", max_grip_force, 0.1, SERVO_FORCE_LIMIT),
+            ("max_gripper_delta", max_gripper_delta, MIN_GRIPPER_DELTA, MAX_OPENING),
+            ("max_grip_force", max_grip_force, MIN_GRIP_FORCE, SERVO_FORCE_LIMIT),
             ("arm_stiffness", arm_stiffness, 0.01, 1.0),
         ):
             require_number(name, value, low, high)
