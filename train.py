@@ -28,6 +28,7 @@ use_headless_default()
 from agents import interrupts  # noqa: E402
 from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
 from agents.run_folder import RunFolderError  # noqa: E402
+from agents.workers import WorkerDied  # noqa: E402
 
 #: Flags that define a run; a resumed run keeps the values in its config.yml.
 RUN_DEFINING_FLAGS = (
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         from agents import training
     if interrupts.requested():
         print("interrupted before training began: nothing was saved", file=sys.stderr)
-        return 130
+        return interrupts.exit_status()
 
     try:
         if args.resume:
@@ -171,8 +172,11 @@ def main(argv: list[str] | None = None) -> int:
         training.train(config, run_dir, progress_bar=args.progress_bar)
     except (ConfigError, RunFolderError) as error:
         parser.error(str(error))
+    except WorkerDied as error:  # the cause is the worker's, not this process's: no traceback
+        print(f"train.py: error: {error}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
-        return 130
+        return interrupts.exit_status()
     return 0
 
 

@@ -32,10 +32,11 @@ import os
 import signal
 from collections.abc import Iterator
 
-_state = {"deferring": False, "requested": False, "saving": False, "warned": False}
+_state = {"deferring": False, "requested": False, "saving": False, "warned": False, "signal": None}
 
 
 def _handler(signum, frame) -> None:
+    _state["signal"] = signum
     if _state["deferring"] and not _state["requested"]:
         _state["requested"] = True
         return
@@ -52,6 +53,7 @@ def install() -> None:
     """Handle SIGINT and SIGTERM (a scheduler's pre-emption, ``kill``) alike. SIGINT is set
     explicitly: a process started in the background by a non-interactive shell inherits it
     ignored, and Python then leaves it ignored."""
+    _state["signal"] = None
     signal.signal(signal.SIGTERM, _handler)
     signal.signal(signal.SIGINT, _handler)
 
@@ -80,6 +82,14 @@ def saving() -> Iterator[None]:
 def requested() -> bool:
     """Whether a signal asked the current :func:`deferred` block to stop."""
     return _state["requested"]
+
+
+def exit_status() -> int:
+    """The exit status of a process the last signal stopped: 128 + its number, as a shell
+    reports a process the signal killed (130 for SIGINT, 143 for SIGTERM), so a scheduler
+    tells a pre-emption from a Ctrl-C. A KeyboardInterrupt no handled signal raised counts
+    as SIGINT."""
+    return 128 + (_state["signal"] or signal.SIGINT)
 
 
 def ignore_in_worker() -> None:

@@ -14,18 +14,26 @@ SMOOTHING_EPISODES = 100
 
 
 def training_returns(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(cumulative env steps, episode return) of every training episode, in time order: a
-    resumed run writes new monitor files (see :func:`agents.run_folder.read_monitor`)."""
-    rows = []
-    for path in sorted((Path(run_dir) / run_folder.MONITOR).glob("*.monitor.csv")):
+    """(the run's step count at its end, return) of every training episode, in step order
+    (see :func:`agents.run_folder.episode_ends`). An older run's files, which do not say where
+    they start, are placed by their cumulative logged steps in time order."""
+    placed, unplaced = [], []
+    for path in run_folder.monitor_files(run_dir):
         monitor = run_folder.read_monitor(path)
-        if monitor is not None:
-            rows += [(end, reward, length) for end, reward, length, _ in monitor.episodes]
-    if not rows:
+        if monitor is None:
+            continue
+        ends = run_folder.episode_ends(path, monitor)
+        if ends is None:
+            unplaced += [(end, reward, length) for end, reward, length, _ in monitor.episodes]
+        else:
+            placed += [(end, e[1]) for end, e in zip(ends, monitor.episodes, strict=True)]
+    unplaced.sort()
+    lengths = np.cumsum([length for _, _, length in unplaced], dtype=np.int64)
+    placed += [(int(end), row[1]) for end, row in zip(lengths, unplaced, strict=True)]
+    if not placed:
         return np.zeros(0), np.zeros(0)
-    rows.sort()
-    lengths = np.array([row[2] for row in rows])
-    return np.cumsum(lengths), np.array([row[1] for row in rows])
+    placed.sort(key=lambda row: row[0])
+    return np.array([row[0] for row in placed]), np.array([row[1] for row in placed])
 
 
 def _pyplot():

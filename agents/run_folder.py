@@ -12,7 +12,8 @@ Layout (file names are constants here, so train.py, evaluate.py and tests agree)
                               (the start curriculum's level, when it advances)
     <run>/evaluations.csv     periodic evaluation history (wall_seconds: of training behind the
                               row, across resumes; see training.TrainingClock)
-    <run>/monitor/            per-episode training returns (SB3 Monitor files)
+    <run>/monitor/            per-episode training returns (SB3 Monitor files), one per env
+                              and start of training: env<rank>-of-<n_envs>_from<steps>_<ns>
     <run>/tensorboard/        TensorBoard logs (with --tensorboard)
     <run>/learning_curve.png  evaluation return and task metric against steps
     <run>/result.json         final comparison against the scripted baseline
@@ -75,6 +76,8 @@ ENTRIES = (
 )
 
 _CHECKPOINT = re.compile(r"model_(\d+)_steps\.zip")
+MONITOR_SUFFIX = ".monitor.csv"
+_MONITOR_NAME = re.compile(r"env(\d+)-of-(\d+)_from(\d+)_\d+" + re.escape(MONITOR_SUFFIX))
 #: What a truncated, corrupt or foreign model, normaliser or replay-buffer file raises on load.
 UNREADABLE = (
     AssertionError,  # SB3's checks of a model saved by another algorithm
@@ -238,6 +241,13 @@ def atomic_path(path: Path) -> Iterator[Path]:
         os.replace(temporary, path)
     finally:
         temporary.unlink(missing_ok=True)
+
+
+def partial_writes(run_dir: Path) -> list[Path]:
+    """What writes through :func:`atomic_path` that a kill cut short left in the run folder."""
+    run_dir = Path(run_dir)
+    folders = (run_dir, run_dir / CHECKPOINTS, run_dir / MONITOR)
+    return sorted(path for folder in folders for path in folder.glob("*.partial*"))
 
 
 @contextmanager
@@ -515,6 +525,33 @@ def read_monitor(path: Path) -> MonitorFile | None:
     return MonitorFile(lines[:2], episodes)
 
 
+def monitor_path(run_dir: Path, rank: int, n_envs: int, start_steps: int, stamp: int) -> Path:
+    """The Monitor file of env ``rank`` of ``n_envs`` in a start (or resume) of training at
+    ``start_steps``. The name carries what places its episodes in the run's steps (see
+    :func:`episode_ends`); ``stamp`` (nanoseconds) keeps two starts apart."""
+    name = f"env{rank}-of-{n_envs}_from{start_steps}_{stamp}{MONITOR_SUFFIX}"
+    return Path(run_dir) / MONITOR / name
+
+
+def monitor_files(run_dir: Path) -> list[Path]:
+    return sorted((Path(run_dir) / MONITOR).glob(f"*{MONITOR_SUFFIX}"))
+
+
+def episode_ends(path: Path, monitor: MonitorFile) -> list[int] | None:
+    """The run's step count when each episode of the Monitor file at ``path`` ended; None for
+    a file whose name does not say where its start of training began (an older run's).
+
+    Every start of training resets its envs and steps them in lockstep, each step counting
+    ``n_envs``: an env's k-th step since the start ends at ``start + n_envs * k``. Exact,
+    whatever episodes an earlier stop cut off unlogged."""
+    match = _MONITOR_NAME.fullmatch(Path(path).name)
+    if match is None:
+        return None
+    n_envs, start = int(match[2]), int(match[3])
+    lengths = (episode[2] for episode in monitor.episodes)
+    return [start + n_envs * steps for steps in itertools.accumulate(lengths)]
+
+
 class Forgetting(NamedTuple):
     """What :func:`forget_after_checkpoint` found to drop; :func:`forget` drops it."""
 
@@ -523,42 +560,66 @@ class Forgetting(NamedTuple):
     best_model_discarded: bool
     monitors: dict[Path, MonitorFile]  #: the files to rewrite, with the episodes they keep
     dropped_episodes: int
+    partial_files: list[Path]  #: what writes a kill cut short left (see partial_writes)
 
 
 def forget_after_checkpoint(run_dir: Path, steps: int, monitors: Iterable[Path]) -> Forgetting:
     """What a run recorded after its checkpoint at ``steps``, which a resume from it trains
     again (a run killed without saving, or a PPO run stopped half-way through a rollout):
     periodic evaluations past ``steps``, the best model if it came from those steps, and the
-    training episodes of the ``monitors`` files beyond the first ``steps`` env steps in time
-    order. Kept, they would be counted twice. Reads and checks all; nothing changes until
-    :func:`forget`, so a resume refused in between leaves the folder as it was."""
+    training episodes of the ``monitors`` files that ended after ``steps``. Kept, they would
+    be counted twice. Also the files of writes a kill cut short. Reads and checks all;
+    nothing changes until :func:`forget`, so a resume refused in between leaves the folder
+    as it was."""
     rows = _evaluation_rows(run_dir)
     kept = [row for row in rows if float(row["timesteps"]) <= steps]
     best = best_model_steps(run_dir)
     files = {path: found for path in monitors if (found := read_monitor(path)) is not None}
-    in_time_order = sorted(
-        (episode[0], episode[2], path, index)
-        for path, file in files.items()
-        for index, episode in enumerate(file.episodes)
-    )
-    ends_at = itertools.accumulate(length for _, length, _, _ in in_time_order)
-    dropped = {
-        (path, index)
-        for (_, _, path, index), total in zip(in_time_order, ends_at, strict=True)
-        if total > steps
-    }
+    dropped = set()
+    unplaced = {}
+    for path, file in files.items():
+        ends = episode_ends(path, file)
+        if ends is None:
+            unplaced[path] = file
+        else:
+            dropped |= {(path, index) for index, end in enumerate(ends) if end > steps}
+    dropped |= _after_steps_in_time_order(unplaced, steps)
     rewritten = {}
     for path, file in files.items():
         episodes = [e for index, e in enumerate(file.episodes) if (path, index) not in dropped]
         if len(episodes) < len(file.episodes):
             rewritten[path] = MonitorFile(file.header, episodes)
     return Forgetting(
-        kept, len(rows) - len(kept), best is not None and best > steps, rewritten, len(dropped)
+        kept,
+        len(rows) - len(kept),
+        best is not None and best > steps,
+        rewritten,
+        len(dropped),
+        partial_writes(run_dir),
     )
+
+
+def _after_steps_in_time_order(files: dict[Path, MonitorFile], steps: int) -> set:
+    """For Monitor files of older runs, which do not say where they start: the episodes
+    beyond the first ``steps`` logged steps in time order (an episode a stop cut off was
+    never logged, so this can keep one that ended after ``steps``)."""
+    in_time_order = sorted(
+        (episode[0], episode[2], path, index)
+        for path, file in files.items()
+        for index, episode in enumerate(file.episodes)
+    )
+    ends_at = itertools.accumulate(length for _, length, _, _ in in_time_order)
+    return {
+        (path, index)
+        for (_, _, path, index), total in zip(in_time_order, ends_at, strict=True)
+        if total > steps
+    }
 
 
 def forget(run_dir: Path, forgetting: Forgetting) -> None:
     """Drops what :func:`forget_after_checkpoint` found."""
+    for path in forgetting.partial_files:
+        path.unlink(missing_ok=True)
     if forgetting.dropped_evaluations:
         _write_evaluations(run_dir, forgetting.evaluations)
     if forgetting.best_model_discarded:
@@ -568,12 +629,22 @@ def forget(run_dir: Path, forgetting: Forgetting) -> None:
         write_text_atomically(path, "".join([*file.header, *(e[3] for e in file.episodes)]))
 
 
+def saved_attribute(model_path: Path, name: str):
+    """The attribute ``name`` an SB3 model zip saved as JSON (None without it, or if the zip
+    cannot be read)."""
+    try:
+        with zipfile.ZipFile(model_path) as archive:
+            return json.loads(archive.read("data")).get(name)
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError, AttributeError):
+        return None
+
+
 def best_model_steps(run_dir: Path) -> int | None:
     """The step count the best model was saved at (None without one, or if unreadable)."""
+    steps = saved_attribute(Path(run_dir) / BEST_MODEL, "num_timesteps")
     try:
-        with zipfile.ZipFile(Path(run_dir) / BEST_MODEL) as archive:
-            return int(json.loads(archive.read("data"))["num_timesteps"])
-    except (OSError, zipfile.BadZipFile, KeyError, ValueError, TypeError):
+        return int(steps) if steps is not None else None
+    except (TypeError, ValueError):
         return None
 
 

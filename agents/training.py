@@ -36,7 +36,7 @@ from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
 import liuxing_envs
-from agents import interrupts, run_folder
+from agents import interrupts, run_folder, workers
 from agents.config import (
     ALGOS,
     MAX_SEED,
@@ -71,6 +71,7 @@ from agents.evaluation import (
 from agents.plotting import plot_learning_curve
 from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS, OPTIMIZERS
 from agents.spaces import describe_space, mismatched_spaces
+from agents.workers import WORKER_GONE, WorkerDied
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
 from liuxing_envs.validation import is_number
 
@@ -97,8 +98,6 @@ DEFAULT_RUNS_DIR = Path("runs")
 #: updates ran 7x slower with 2 threads competing with 4 envs on 2 cores (0.73 s vs 5.1 s).
 DEFAULT_TORCH_THREADS = 1
 KEEP_CHECKPOINTS = 3
-#: What the parent of a SubprocVecEnv sees when a worker process has died.
-WORKER_GONE = (EOFError, BrokenPipeError, ConnectionResetError)
 #: Periodic evaluation replays the same seeds each time (so its curve compares like with
 #: like), offset from the training seeds.
 PERIODIC_EVAL_SEED_OFFSET = 10_000
@@ -407,20 +406,22 @@ def _env_factory(config: dict, monitor_file: str | None, keys):
     return make
 
 
-def build_vec_env(config: dict, run_dir: Path) -> gym.Env:
+def build_vec_env(config: dict, run_dir: Path, start_steps: int = 0) -> gym.Env:
+    """The training envs of a start (``start_steps`` 0) or resume of the run, each logging
+    its episodes to a Monitor file of its own (see :func:`run_folder.monitor_path`)."""
     task = task_for(config["env_id"])
-    monitor_dir = run_dir / run_folder.MONITOR
-    monitor_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / run_folder.MONITOR).mkdir(parents=True, exist_ok=True)
     # Nanoseconds: a resume within the second its run stopped in, named by whole seconds,
     # overwrote that run's monitor files (its training episodes).
     stamp = time.time_ns()
+    n_envs = config["n_envs"]
     factories = [
         _env_factory(
             config,
-            str(monitor_dir / f"env{rank}_{stamp}"),
+            str(run_folder.monitor_path(run_dir, rank, n_envs, start_steps, stamp)),
             (task.metric,),
         )
-        for rank in range(config["n_envs"])
+        for rank in range(n_envs)
     ]
     return VEC_ENVS[config["vec_env"]](factories)
 
@@ -436,6 +437,59 @@ def vector_keys(space: gym.spaces.Space) -> list[str]:
 #: The model attribute (saved in its zip with SB3's other attributes) holding the seconds of
 #: training behind it, across resumes.
 TRAINED_SECONDS = "liuxing_trained_seconds"
+#: config.yml's settings that define a run. A resume keeps them (--resume changes only
+#: n_timesteps, device, final_episodes and torch_threads), so every saved model records them
+#: (as the attribute RUN_DEFINITION) and a resume refuses a config.yml that changed one.
+RUN_DEFINING_KEYS = (
+    "env_id", "algo", "seed", "n_envs", "vec_env", "policy", "normalize", "demonstrations",
+    "start_curriculum", "env_kwargs", "eval_env_kwargs", "hyperparams", "eval_freq",
+    "eval_episodes", "save_freq", "tensorboard", "init_from",
+)  # fmt: skip
+RUN_DEFINITION = "liuxing_run_definition"
+
+
+def run_definition(config: Mapping) -> dict:
+    """``config``'s run-defining settings, as JSON has them (what a saved model records)."""
+    return json.loads(json.dumps({key: config.get(key) for key in RUN_DEFINING_KEYS}, default=repr))
+
+
+def check_run_definition(config: Mapping, model_path: Path, config_path: Path) -> None:
+    """A RunFolderError naming each run-defining setting of ``config`` (read from
+    ``config_path``) that differs from what the model at ``model_path`` trained under: a
+    config.yml edited by hand, or damaged, would otherwise be ignored (SB3 loads its
+    hyper-parameters from the model) or change the run silently (``n_envs``). A model saved
+    before models recorded this passes."""
+    recorded = run_folder.saved_attribute(model_path, RUN_DEFINITION)
+    if not isinstance(recorded, dict):
+        return
+    changed = [
+        f"{key} is {_shown(now)} there, but the run was trained with {_shown(then)}"
+        for key, then, now in _differences(recorded, run_definition(config))
+    ]
+    if changed:
+        raise run_folder.RunFolderError(
+            f"{str(config_path)!r} no longer holds the settings its run was trained with "
+            f"(was config.yml edited?): {'; '.join(changed)}. A resumed run keeps them; "
+            "put them back, or start a new run (--init-from starts one from this run's policy)"
+        )
+
+
+_ABSENT = object()
+
+
+def _shown(value) -> str:
+    return "absent" if value is _ABSENT else repr(value)
+
+
+def _differences(then: Mapping, now: Mapping, prefix: str = ""):
+    """(dotted key, old value, new value) of each setting that differs, nested mappings
+    compared key by key (a missing key's value is _ABSENT)."""
+    for key in sorted({*then, *now}, key=str):
+        old, new = then.get(key, _ABSENT), now.get(key, _ABSENT)
+        if isinstance(old, dict) and isinstance(new, dict):
+            yield from _differences(old, new, f"{prefix}{key}.")
+        elif old != new or type(old) is not type(new):
+            yield f"{prefix}{key}", old, new
 
 
 class TrainingClock:
@@ -790,6 +844,7 @@ def _start(config: dict, run_dir: Path, trained: TrainedStart | None):
             )
         evaluation = _periodic_evaluation(config, run_dir, venv)
         model = _checked_model(config, venv, run_dir)
+        setattr(model, RUN_DEFINITION, run_definition(config))  # saved with every checkpoint
         if trained is not None:
             load_trained_weights(model, trained)
             if trained.replay_buffer is not None:
@@ -827,8 +882,7 @@ def _remove_written(run_dir: Path, before: set[str] | None) -> None:
 
 def _close_opened(venv, evaluation: PeriodicEvaluation | None) -> None:
     """Closes what a start or resume that failed half-way had opened."""
-    if venv is not None:
-        venv.close()
+    workers.stop(venv)
     if evaluation is not None:
         evaluation.env.close()
 
@@ -996,6 +1050,9 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
     steps = run_folder.latest_checkpoint(run_dir)
     if steps is None:
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no checkpoint to resume from")
+    check_run_definition(
+        config, run_folder.checkpoint_paths(run_dir, steps)["model"], run_dir / run_folder.CONFIG
+    )
     # The run's total changes only once it trains on: a finished run keeps its own.
     total = config["n_timesteps"] if n_timesteps is None else int_at_least("timesteps", n_timesteps)
     checks = {
@@ -1041,7 +1098,7 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
     monitors_before = set((run_dir / run_folder.MONITOR).glob("*"))
     venv = evaluation = None
     try:
-        venv = build_vec_env(config, run_dir)
+        venv = build_vec_env(config, run_dir, start_steps=steps)
         _check_checkpoint_fits(paths["model"], venv, run_dir / run_folder.CONFIG)
         saved_by = run_folder.saved_algorithm(paths["model"])
         if saved_by != config["algo"]:
@@ -1073,7 +1130,9 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
             )
         curriculum_state = run_folder.read_curriculum_state(paths["curriculum"])
         forgetting = run_folder.forget_after_checkpoint(
-            run_dir, steps, (p for p in monitors_before if p.name.endswith(".monitor.csv"))
+            run_dir,
+            steps,
+            (p for p in monitors_before if p.name.endswith(run_folder.MONITOR_SUFFIX)),
         )
         evaluation = _periodic_evaluation(config, run_dir, venv)
     except BaseException as error:  # refused: the run folder is left as it was
@@ -1115,6 +1174,9 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
         )
         if evaluation is not None:
             evaluation.best = evaluation.best_so_far()
+    if forgetting.partial_files:
+        names = ", ".join(str(path.relative_to(run_dir)) for path in forgetting.partial_files)
+        print(f"removed what interrupted writes left: {names}")
     run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps}, resuming=True)
     # A new stream: the resumed run must not replay the episodes it has already seen.
     model.set_random_seed(resumed_seed(config["seed"], steps))
@@ -1202,25 +1264,25 @@ def _learn(
             )
             raise
         except Exception as error:  # a dying worker, a bug, or a setting SB3 cannot train with
+            # Read first: the dead worker's exit status, before anything else takes time.
+            died = isinstance(error, WORKER_GONE) and workers.describe_dead(model.get_env())
             model.num_timesteps = boundary.steps
             steps = save_checkpoint(model, run_dir, level, clock)
-            if isinstance(error, WORKER_GONE):
-                # SubprocVecEnv's worker died on an exception; the parent only sees the pipe close.
-                what = (
-                    f"a {config['env_id']} worker process of the vectorised env died; its "
-                    "traceback is printed above and ends with the env and the step that failed."
-                )
-            else:
-                what = f"training stopped on {type(error).__name__}: {error} (traceback above)."
-            raise RuntimeError(
-                f"{what} A checkpoint was saved at {steps} steps; "
+            resume_hint = (
+                f"A checkpoint was saved at {steps} steps; "
                 f"after a fix, continue with: python train.py --resume {run_dir}"
+            )
+            if died:
+                raise WorkerDied(
+                    f"the vectorised {config['env_id']} env lost a worker: {died}. The other "
+                    f"workers were stopped. {resume_hint}"
+                ) from error
+            raise RuntimeError(
+                f"training stopped on {type(error).__name__}: {error} (traceback above). "
+                + resume_hint
             ) from error
         finally:
-            try:
-                model.get_env().close()
-            except WORKER_GONE:
-                pass  # a dead worker cannot be told to close
+            workers.stop(model.get_env())
             for callback in callbacks:
                 if isinstance(callback, PeriodicEvaluation):
                     callback.env.close()

@@ -170,6 +170,14 @@ def as_index(action, n: int) -> int:
     return int(value)
 
 
+def refuse_if_closed(env) -> None:
+    """RuntimeError for a step of an env whose close() has run since its last reset(): a
+    closed env that went on stepping (its renderers made anew) hid a use-after-close bug."""
+    if env.closed:
+        env_id = env.spec.id if env.spec is not None else type(env).__name__
+        raise RuntimeError(f"{env_id}: step() after close(); reset() it first, or make a new env")
+
+
 @contextmanager
 def step_context(env, step: int, seed: int | None) -> Iterator[None]:
     """Notes on any error raised inside: which env, which step of the episode, and the reset

@@ -1,6 +1,8 @@
 """The disk cache of precomputed ground truth: bit-for-bit results, misses on any change,
-damaged entries replaced, and a cache that is off or unwritable costing only time."""
+damaged entries never used but replaced, and a cache that is off or unwritable costing only
+time."""
 
+import os
 import warnings
 
 import numpy as np
@@ -30,7 +32,11 @@ def cache(tmp_path, monkeypatch):
 
 
 def entries(folder):
-    return sorted(folder.glob("observable-*.npy"))
+    return sorted(folder.glob("observable-*.entry"))
+
+
+def stored_array(entry):
+    return disk_cache.decode_entry(entry.read_bytes())
 
 
 def cold(*args, **kwargs):
@@ -72,28 +78,92 @@ def test_any_change_of_what_it_is_computed_from_misses(cache):
     assert not np.array_equal(cast[0], cast[3]) and not np.array_equal(cast[0], cast[7])
 
 
-def test_a_damaged_entry_is_computed_again_and_replaced(cache):
+def flipped(data: bytes, start: int, stop: int | None = None) -> bytes:
+    """``data`` with every bit of ``data[start:stop]`` inverted."""
+    middle = bytes(255 - byte for byte in data[start:stop])
+    return data[:start] + middle + (data[stop:] if stop is not None else b"")
+
+
+def npy_body(entry_bytes: bytes) -> int:
+    """Where an entry's array data starts: after the cache header and the .npy header, so
+    damage there leaves every header intact."""
+    payload = len(disk_cache.ENTRY_MAGIC) + 32
+    return payload + entry_bytes[payload:].index(b"\n") + 1
+
+
+def test_a_damaged_entry_is_never_used_but_computed_again_replaced_and_named(cache):
+    """Only shape and dtype were checked: an entry whose array bytes were inverted, or
+    overwritten with 7s, with its headers intact, was used as it was (other coverages, no
+    warning), and a zeroed one made every env fail with "no sample is observable"."""
     folder, casts = cache
     first = cold("mug", 1.0, 1024)
     (entry,) = entries(folder)
     stored = entry.read_bytes()
-    damages = [
-        b"not an array",
-        stored[:10] + b"\x00" + stored[11:],  # in the header: numpy raises tokenize's error
-        stored[: len(stored) // 2],  # cut short
-        np.zeros(3, dtype=bool),
-        np.zeros(1024, dtype=np.uint8),
-    ]
-    for damage in damages:
-        if isinstance(damage, bytes):
-            entry.write_bytes(damage)
-        else:
-            np.save(entry, damage)
+    body, magic = npy_body(stored), len(disk_cache.ENTRY_MAGIC)
+    damages = {
+        "array bits inverted": flipped(stored, body),
+        "array overwritten with 7s": stored[:body] + b"\x07" * (len(stored) - body),
+        "array zeroed": stored[:body] + bytes(len(stored) - body),
+        "one byte of the checksum": flipped(stored, magic, magic + 1),
+        "not an entry": b"not an array",
+        "cut short": stored[: len(stored) // 2],
+        "an entry of another shape": disk_cache.encode_entry(np.zeros(3, dtype=bool)),
+        "an entry of another dtype": disk_cache.encode_entry(np.zeros(1024, dtype=np.uint8)),
+    }
+    for what, damage in damages.items():
+        entry.write_bytes(damage)
         casts.clear()
-        again = cold("mug", 1.0, 1024)
-        assert casts == ["mug"]
-        np.testing.assert_array_equal(again.observable, first.observable)
-        np.testing.assert_array_equal(np.load(entry), first.observable)  # replaced
+        with pytest.warns(RuntimeWarning, match="damaged cache entry") as warned:
+            again = cold("mug", 1.0, 1024)
+        assert len(warned) == 1 and str(entry) in str(warned[0].message), what
+        assert casts == ["mug"], what
+        np.testing.assert_array_equal(again.observable, first.observable, err_msg=what)
+        assert entry.read_bytes() == stored, what  # replaced with the true entry
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            cold("mug", 1.0, 1024)  # read back: no warning, no cast
+        assert casts == ["mug"], what
+
+
+def test_a_damaged_entry_never_changes_what_an_env_measures(cache):
+    """Through gym.make: the coverages of seeded episodes with a damaged cache are those of
+    a fresh one."""
+    import gymnasium as gym
+
+    import liuxing_envs  # noqa: F401
+
+    folder, _ = cache
+    kwargs = {"objects": ["mug"], "scales": (1.0,), "coverage_samples": 1024}
+
+    def coverages():
+        objects._observable_samples.cache_clear()
+        env = gym.make("ViewPlanning-v0", **kwargs)
+        try:
+            return [env.reset(seed=seed)[1]["coverage"] for seed in range(3)]
+        finally:
+            env.close()
+
+    fresh = coverages()
+    (entry,) = entries(folder)
+    stored = entry.read_bytes()
+    entry.write_bytes(flipped(stored, npy_body(stored)))
+    with pytest.warns(RuntimeWarning, match="damaged cache entry"):
+        assert coverages() == fresh
+    assert entry.read_bytes() == stored
+
+
+@pytest.mark.parametrize("umask", [0o002, 0o022, 0o077])
+def test_entries_are_created_with_the_users_umask(cache, umask):
+    """Entries were written with mode 0600 whatever the umask: a cache folder shared by a
+    group was unreadable to the others."""
+    folder, _ = cache
+    previous = os.umask(umask)
+    try:
+        cold("mug", 1.0, 1024)
+    finally:
+        os.umask(previous)
+    (entry,) = entries(folder)
+    assert entry.stat().st_mode & 0o777 == 0o666 & ~umask
 
 
 def test_the_cache_can_be_turned_off(cache, monkeypatch):

@@ -225,6 +225,25 @@ def test_bad_reset_option_values_name_the_option(env_id, options, message, view_
 # --- simulator faults ------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize(
+    ("env_id", "kwargs"),
+    [("ViewPlanning-v0", VIEW_FAST), ("InstrumentGrasp-v0", GRASP_FAST)],
+)
+def test_a_closed_env_refuses_to_step_until_it_is_reset(env_id, kwargs):
+    """A closed env went on stepping (its renderer made anew), hiding use after close."""
+    env = gym.make(env_id, **kwargs)
+    env.reset(seed=0)
+    action = env.action_space.sample()
+    env.step(action)
+    env.close()
+    env.close()  # twice is harmless
+    with pytest.raises(RuntimeError, match=rf"{env_id}: step\(\) after close\(\); reset\(\) it"):
+        env.step(action)
+    env.reset(seed=0)  # reopens it
+    env.step(action)
+    env.close()
+
+
 def test_grasp_physics_divergence_truncates_and_the_next_reset_recovers():
     env = gym.make("InstrumentGrasp-v0", **GRASP_FAST)
     env.reset(seed=0)
@@ -318,7 +337,8 @@ def test_training_on_a_dying_worker_says_so_and_keeps_a_checkpoint(tmp_path):
     model = PPO(
         config["policy"], SubprocVecEnv([failing_grasp_env] * 2), n_steps=2, batch_size=4, seed=0
     )
-    with pytest.raises(RuntimeError, match="InstrumentGrasp-v0 worker process") as error:
+    died = r"InstrumentGrasp-v0 env lost a worker: worker \d of 2 \(pid \d+\) exited with status 1"
+    with pytest.raises(RuntimeError, match=died) as error:
         training._learn(model, config, tmp_path, progress_bar=False, resuming=False)
     assert "--resume" in str(error.value)
     # One whole rollout (2 envs x 2 steps) was learnt from before the fourth step failed.

@@ -936,6 +936,52 @@ def test_a_run_stopped_half_way_through_a_rollout_counts_its_episodes_once(tmp_p
     assert training_returns(run_dir)[0][-1] == 96
 
 
+def test_resumes_count_no_step_twice_after_episodes_a_stop_cut_off(tmp_path, monkeypatch):
+    """A SIGTERM at step 9 cut an episode off unlogged; the resume trained on to 30, then was
+    killed after its checkpoint at 24. Placing episodes by their logged lengths alone, the
+    next resume kept the episode that ended at step 26 (counted as 24) although it trained
+    steps 25-26 again."""
+    from agents.plotting import training_returns
+
+    original = training.RolloutBoundary._on_step
+
+    def sigterm_at_9(self):
+        if self.model.num_timesteps == 9:  # half-way through the episode of steps 9-12
+            signal.raise_signal(signal.SIGTERM)
+        return original(self)
+
+    monkeypatch.setattr(training.RolloutBoundary, "_on_step", sigterm_at_9)
+    run_dir = tmp_path / "run"
+    # 4-view episodes, 6-step rollouts, a checkpoint every 6 steps.
+    argv = quick_args(
+        "ViewPlanning-v0", "ppo", run_dir, 30, n_envs=1, hyperparams=("n_steps=6", "batch_size=6")
+    )
+    argv += ["--save-freq", "6", "--eval-freq", "0", "--final-episodes", "0"]
+    assert train.main(argv) == 143  # 128 + SIGTERM, as a shell reports it
+    assert run_folder.latest_checkpoint(run_dir) == 6
+    monkeypatch.undo()
+    assert train.main(["--resume", str(run_dir), "--no-progress-bar"]) == 0
+    assert list(training_returns(run_dir)[0]) == [4, 10, 14, 18, 22, 26, 30]
+    # What a kill -9 after the checkpoint at 24 leaves: no later checkpoint, no final model,
+    # and half of a checkpoint's write.
+    for path in run_folder.checkpoint_paths(run_dir, 30).values():
+        path.unlink(missing_ok=True)
+    for name in (run_folder.FINAL_MODEL, run_folder.RESULT):
+        (run_dir / name).unlink()
+    partial = run_dir / run_folder.CHECKPOINTS / "model_30_steps.zip.partial.zip"
+    partial.write_bytes(b"PK\x03\x04 cut short")
+    assert train.main(["--resume", str(run_dir), "--no-progress-bar"]) == 0
+    ends, _ = training_returns(run_dir)
+    assert list(ends) == [4, 10, 14, 18, 22, 28]  # steps 29-30: an episode the run's end cut
+    logged = sum(
+        episode[2]
+        for path in run_folder.monitor_files(run_dir)
+        for episode in run_folder.read_monitor(path).episodes
+    )
+    assert logged == 24  # 6 whole episodes, each step in one
+    assert not partial.exists() and not run_folder.partial_writes(run_dir)
+
+
 def test_each_start_of_training_writes_monitor_files_of_its_own(tmp_path, monkeypatch):
     """Named by whole seconds, the files of a resume within the second its run stopped in
     replaced the run's own (a learning curve that lost its first episodes, once in CI)."""
@@ -1124,12 +1170,12 @@ def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(tmp_path):
         ("torch_threads: 1", "torch_threads: x", "torch_threads must be an integer >= 1"),
         ("normalize: false", "normalize: 'no'", "normalize must be true or false, got 'no'"),
         ("policy: MultiInputPolicy", "policy: CnnPolicy", "unknown policy 'CnnPolicy'"),
-        ("algo: ppo", "algo: sac", "algo sac did not save"),
+        ("algo: ppo", "algo: sac", "algo is 'sac' there, but the run was trained with 'ppo'"),
         # Not the checkpoint's fault: SB3's load called it unreadable.
         (
             "env_kwargs:",
             "env_kwargs:\n  view_budget: 6",
-            "its env_kwargs give the observation_space {budget: Box(1,) float32",
+            "env_kwargs.view_budget is 6 there, but the run was trained with absent",
         ),
     ],
 )
@@ -1143,8 +1189,47 @@ def test_a_damaged_config_is_refused_on_resume_before_the_folder_changes(
     path.write_text(path.read_text().replace(f"\n{saved}\n", f"\n{edited}\n"))
     before = run_files(run_dir)
     result = run_train("--resume", str(run_dir), "-n", "128", check=False)
-    assert result.returncode == 2 and f"config.yml': {message}" in result.stderr
+    assert result.returncode == 2 and "config.yml'" in result.stderr
+    assert message in result.stderr.replace("\n", " ").replace("  ", " ")
     assert run_files(run_dir) == before
+
+
+def test_a_hand_edited_run_defining_setting_is_refused_on_resume(tmp_path, capsys):
+    """Resumed, an edited hyper-parameter (gamma: abc) trained with the saved one and exit 0,
+    and n_envs 2 -> 3 was taken silently and changed training."""
+    run_dir = tmp_path / "run"
+    assert (
+        train.main([*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0"])
+        == 0
+    )
+    path = run_dir / run_folder.CONFIG
+    written = path.read_text()
+    edits = {
+        "  gamma: 0.5": (
+            "  gamma: abc",
+            "hyperparams.gamma is 'abc' there, but the run was trained with 0.5",
+        ),
+        "n_envs: 2": ("n_envs: 3", "n_envs is 3 there, but the run was trained with 2"),
+        "save_freq: 32": (
+            "save_freq: 64",
+            "save_freq is 64 there, but the run was trained with 32",
+        ),
+        "  object_set: train": ("  object_set: test", "env_kwargs.object_set is 'test' there"),
+    }
+    before = run_files(run_dir)
+    for saved, (edited, message) in edits.items():
+        assert f"\n{saved}\n" in written
+        path.write_text(written.replace(f"\n{saved}\n", f"\n{edited}\n"))
+        with pytest.raises(SystemExit) as refused:
+            train.main(["--resume", str(run_dir), "-n", "128", "--no-progress-bar"])
+        stderr = capsys.readouterr().err
+        assert refused.value.code == 2 and f"{str(path)!r} no longer holds" in stderr, stderr
+        assert message in " ".join(stderr.split()), stderr
+        assert {p: b for p, b in run_files(run_dir).items() if p != path} == {
+            p: b for p, b in before.items() if p != path
+        }
+    path.write_text(written)
+    assert train.main(["--resume", str(run_dir), "-n", "128", "--no-progress-bar"]) == 0
 
 
 def run_files(run_dir: Path) -> dict[Path, bytes]:
@@ -1162,10 +1247,15 @@ def test_a_config_without_optional_settings_resumes_with_their_defaults(tmp_path
     run_dir = tmp_path / "run"
     assert train.main(grasp_ppo_args(run_dir, 64)) == 0
     path = run_dir / run_folder.CONFIG
+    written = path.read_text()
+    # save_freq's default (10,000) is not this run's (32): dropped, it is a changed setting.
+    path.write_text(written.replace("\nsave_freq: 32\n", "\n"))
+    with pytest.raises(SystemExit):
+        train.main(["--resume", str(run_dir), "-n", "128", "--no-progress-bar"])
     kept = [
         line
-        for line in path.read_text().splitlines(keepends=True)
-        if not line.startswith(("tensorboard:", "vec_env:", "save_freq:", "torch_threads:"))
+        for line in written.splitlines(keepends=True)
+        if not line.startswith(("tensorboard:", "vec_env:", "torch_threads:"))
     ]
     path.write_text("".join(kept))
     assert train.main(["--resume", str(run_dir), "-n", "128", "--no-progress-bar"]) == 0
@@ -1307,7 +1397,7 @@ def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, vec_
         time.sleep(0.2)
     os.killpg(process.pid, interrupt)
     stdout, stderr = process.communicate(timeout=120)
-    assert process.returncode == 130, stderr[-2000:]
+    assert process.returncode == 128 + interrupt, stderr[-2000:]  # 130 or 143, as a shell says
     assert "checkpoint saved" in stdout
     assert "Traceback" not in stderr, stderr[-2000:]
     steps = run_folder.latest_checkpoint(run_dir)
@@ -1320,6 +1410,76 @@ def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, vec_
     final = PPO.load(run_dir / run_folder.FINAL_MODEL)
     assert final.num_timesteps == -(-total // rollout) * rollout == 1024
     assert run_folder.latest_checkpoint(run_dir) == 1024
+
+
+def descendants(pid: int) -> dict[int, int]:
+    """The live processes below ``pid``, each with its depth (1: a child)."""
+    parents = {}
+    for entry in Path("/proc").iterdir():
+        try:
+            fields = (entry / "stat").read_text().rpartition(")")[2].split()
+        except (OSError, ValueError):
+            continue
+        if entry.name.isdigit() and fields[0] != "Z":  # a zombie has ended
+            parents[int(entry.name)] = int(fields[1])
+    found, frontier = {}, {pid: 0}
+    while frontier:
+        frontier = {
+            child: frontier[parent] + 1 for child, parent in parents.items() if parent in frontier
+        }
+        found.update(frontier)
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads the process tree from /proc")
+def test_a_killed_worker_ends_the_run_with_a_checkpoint_and_no_process_left(tmp_path):
+    """After kill -9 of one SubprocVecEnv worker the run saved its checkpoint and said how to
+    resume, then hung for ever at exit: Python's multiprocessing sent SIGTERM to the other
+    worker, which ignores it, and waited. Its message also spoke of a traceback "printed
+    above" that a killed worker never prints."""
+    run_dir = tmp_path / "run"
+    argv = grasp_ppo_args(
+        run_dir, 100_000, "--n-envs", "2", "--vec-env", "subproc", "--save-freq", "256"
+    )
+    process = subprocess.Popen(
+        [sys.executable, "train.py", *argv],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and process.poll() is None:
+            if run_folder.latest_checkpoint(run_dir):  # stepping, and past one checkpoint
+                break
+            time.sleep(0.2)
+        # The forkserver's children: the workers (the resource tracker is a child of the run).
+        workers = [pid for pid, depth in descendants(process.pid).items() if depth == 2]
+        assert len(workers) == 2, descendants(process.pid)
+        os.kill(workers[1], signal.SIGKILL)
+        killed_at = time.monotonic()
+        stdout, stderr = process.communicate(timeout=60)
+        took = time.monotonic() - killed_at
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    assert process.returncode == 1, stderr[-2000:]
+    assert took < 20
+    assert f"(pid {workers[1]}) was killed by SIGKILL" in stderr, stderr[-2000:]
+    assert "printed no traceback" in stderr and "printed above" not in stderr
+    assert "Traceback" not in stderr, stderr[-2000:]
+    assert f"continue with: python train.py --resume {run_dir}" in stderr
+    assert not descendants(process.pid) and all(
+        pid not in descendants(os.getpid()) for pid in workers
+    )
+    steps = run_folder.latest_checkpoint(run_dir)
+    assert steps is not None and steps % 128 == 0  # whole 2 x 64-step rollouts
+    run_train("--resume", str(run_dir), "-n", str(steps + 128), "--no-progress-bar")
+    assert run_folder.latest_checkpoint(run_dir) == steps + 128
 
 
 def test_a_signal_while_learning_waits_for_the_next_step_and_a_second_one_does_not():

@@ -44,6 +44,7 @@ from liuxing_envs.validation import (
     option_angle,
     option_in,
     option_xy,
+    refuse_if_closed,
     require_choice,
     require_int,
     require_number,
@@ -739,9 +740,12 @@ class InstrumentGraspEnv(gym.Env):
         self._steps = 0
         self._episode_ready = False
         self._renderer: mujoco.Renderer | None = None
+        #: Set by close() and cleared by reset(): a closed env refuses step().
+        self.closed = False
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.closed = False  # reopened: renderers are made again when needed
         options = checked_reset_options(
             options,
             {
@@ -814,6 +818,7 @@ class InstrumentGraspEnv(gym.Env):
         return self._observation(), info
 
     def step(self, action):
+        refuse_if_closed(self)
         with step_context(self, self._steps + 1, self._reset_seed):
             return self._step(action)
 
@@ -952,6 +957,8 @@ class InstrumentGraspEnv(gym.Env):
         return frame
 
     def close(self) -> None:
+        self.closed = True
+        self._episode_ready = False
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

@@ -59,6 +59,7 @@ from liuxing_envs.validation import (
     option_angle,
     option_in,
     option_xy,
+    refuse_if_closed,
     require_choice,
     require_int,
     require_number,
@@ -581,6 +582,8 @@ class ViewPlanningEnv(gym.Env):
         self._preview_saved: mujoco.MjData | None = None  # preview_view's copy of the data
         self._reset_seed: int | None = None
         self._episode_ready = False
+        #: Set by close() and cleared by reset(): a closed env refuses step().
+        self.closed = False
         self.placed = None
         self.coverage: CoverageTracker | None = None
         self.center = np.zeros(3)
@@ -591,6 +594,7 @@ class ViewPlanningEnv(gym.Env):
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.closed = False  # reopened: renderers are made again when needed
         options = checked_reset_options(
             options,
             {
@@ -638,6 +642,7 @@ class ViewPlanningEnv(gym.Env):
         return self._observation(), info
 
     def step(self, action):
+        refuse_if_closed(self)
         with step_context(self, self.views_used + 1, self._reset_seed):
             return self._step(action)
 
@@ -744,12 +749,14 @@ class ViewPlanningEnv(gym.Env):
         return self._camera
 
     def close(self) -> None:
+        self.closed = True
+        self._episode_ready = False
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
         if self._camera is not None:
             self._camera.close()
-            self._camera = None  # the camera property makes a new one if the env is reused
+            self._camera = None  # the camera property makes a new one if the env is reset again
 
     # ------------------------------------------------------------------ reconstruction
     def reconstruct(
