@@ -37,7 +37,7 @@ SHIPPED_GRASP_TASK = yaml.safe_load(
 STEPS = 300
 RESET_EVERY = 100
 VIEW = {"objects": ["box", "mug", "cylinder"], "scales": [1.0, 1.2], "coverage_samples": 2048}
-GRASP = {"instruments": ["scalpel", "forceps"]}
+GRASP = {"instruments": ["scalpel", "tissue_forceps"]}
 #: name: (env id, kwargs). Each backend, discrete actions, dynamic motion, privileged and
 #: free-space observations, each grasp observation mode, and the shipped grasp policy's task.
 CONFIGURATIONS = {
