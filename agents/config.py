@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import argparse
 import copy
-import difflib
 import inspect
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import yaml
+
+from liuxing_envs.validation import closest
 
 HYPERPARAMS_DIR = Path(__file__).resolve().parent / "hyperparams"
 ALGOS = ("ppo", "sac")
@@ -78,14 +79,6 @@ class ConfigError(ValueError):
     """A configuration value the harness cannot use; the message says what is allowed."""
 
 
-def closest(name: str, allowed: Iterable[str]) -> str:
-    """``" (did you mean 'x'?)"`` for the closest allowed name, or ``""`` if none is close."""
-    if not isinstance(name, str):  # a YAML key or value of another kind: 5, [1]
-        return ""
-    match = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.5)
-    return f" (did you mean {match[0]!r}?)" if match else ""
-
-
 MAX_SEED = 2**32 - 1  # numpy's generators take seeds up to here
 
 
@@ -127,12 +120,7 @@ def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
 
     import liuxing_envs  # noqa: F401  (registers the ids)
 
-    env_class = load_env_creator(gym.spec(env_id).entry_point)
-    accepted = [
-        name
-        for name, parameter in inspect.signature(env_class.__init__).parameters.items()
-        if parameter.kind is inspect.Parameter.KEYWORD_ONLY
-    ]
+    accepted = load_env_creator(gym.spec(env_id).entry_point).keyword_names()
     for name in env_kwargs:
         if name not in accepted:
             raise ConfigError(

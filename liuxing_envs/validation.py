@@ -4,8 +4,9 @@ and the context added to an error raised in an env's ``step``."""
 
 from __future__ import annotations
 
+import difflib
 import math
-from collections.abc import Callable, Iterator, Mapping, Set
+from collections.abc import Callable, Iterable, Iterator, Mapping, Set
 from contextlib import contextmanager
 
 import numpy as np
@@ -168,6 +169,14 @@ def as_index(action, n: int) -> int:
     if not (math.isfinite(value) and value.is_integer() and 0 <= value < n):
         raise ValueError(message)
     return int(value)
+
+
+def closest(name, allowed: Iterable[str]) -> str:
+    """``" (did you mean 'x'?)"`` for the closest allowed name, or ``""`` if none is close."""
+    if not isinstance(name, str):  # a YAML key or value of another kind: 5, [1]
+        return ""
+    match = difflib.get_close_matches(name, list(allowed), n=1, cutoff=0.5)
+    return f" (did you mean {match[0]!r}?)" if match else ""
 
 
 def refuse_if_closed(env) -> None:

@@ -179,6 +179,23 @@ def test_bad_kwargs_are_refused_naming_the_kwarg(env_class, data):
     assert name in str(error.value)
 
 
+@pytest.mark.parametrize(
+    ("env_id", "env_class", "misspelt", "meant"),
+    [("ViewPlanning-v0", ViewPlanningEnv, "view_budgett", "view_budget"),
+     ("InstrumentGrasp-v0", InstrumentGraspEnv, "max_grip_forse", "max_grip_force")],
+)  # fmt: skip
+def test_a_misspelt_keyword_is_refused_with_the_closest_name_and_the_allowed_ones(
+    env_id, env_class, misspelt, meant
+):
+    """gym.make with a misspelt keyword got Python's bare TypeError, naming no valid one."""
+    with pytest.raises(TypeError) as error:
+        gym.make(env_id, **{misspelt: 1})
+    message = str(error.value)
+    assert f"no keyword argument {misspelt!r} (did you mean {meant!r}?)" in message
+    allowed = message.partition("; allowed: ")[2].split(" was raised")[0]
+    assert allowed.split(", ") == keyword_names(env_class)
+
+
 @pytest.mark.parametrize("env_id", ["ViewPlanning-v0", "InstrumentGrasp-v0"])
 @FUZZ
 @given(

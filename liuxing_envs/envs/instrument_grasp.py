@@ -5,11 +5,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from liuxing_envs.envs.base import LiuxingEnv
 from liuxing_envs.forking import check_opengl_not_forked
 from liuxing_envs.opengl import new_renderer, require_opengl
 from liuxing_envs.sim.arm import Arm
@@ -269,7 +269,7 @@ def _require_guardable_fingers(
     )
 
 
-class InstrumentGraspEnv(gym.Env):
+class InstrumentGraspEnv(LiuxingEnv):
     """Pick a surgical instrument off a tray without squeezing or striking it too hard.
 
     The arm (UR5e kinematics) carries a parallel-jaw gripper with touch-sensing pads and the
@@ -740,8 +740,6 @@ class InstrumentGraspEnv(gym.Env):
         self._steps = 0
         self._episode_ready = False
         self._renderer: mujoco.Renderer | None = None
-        #: Set by close() and cleared by reset(): a closed env refuses step().
-        self.closed = False
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -957,7 +955,7 @@ class InstrumentGraspEnv(gym.Env):
         return frame
 
     def close(self) -> None:
-        self.closed = True
+        super().close()
         self._episode_ready = False
         if self._renderer is not None:
             self._renderer.close()

@@ -11,11 +11,11 @@ from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
-import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from liuxing_envs.envs.base import LiuxingEnv
 from liuxing_envs.forking import check_opengl_not_forked
 from liuxing_envs.opengl import new_renderer, require_opengl
 from liuxing_envs.perception.coverage import CoverageTracker
@@ -126,7 +126,7 @@ RENDER_SIZE = (480, 640)
 RENDER_MAX_POINTS = 3000
 
 
-class ViewPlanningEnv(gym.Env):
+class ViewPlanningEnv(LiuxingEnv):
     """Next-best-view planning: choose where the wrist depth camera looks next.
 
     A 6-DoF arm (UR5e kinematics) with a wrist depth camera stands at a table with one object
@@ -582,8 +582,6 @@ class ViewPlanningEnv(gym.Env):
         self._preview_saved: mujoco.MjData | None = None  # preview_view's copy of the data
         self._reset_seed: int | None = None
         self._episode_ready = False
-        #: Set by close() and cleared by reset(): a closed env refuses step().
-        self.closed = False
         self.placed = None
         self.coverage: CoverageTracker | None = None
         self.center = np.zeros(3)
@@ -749,7 +747,7 @@ class ViewPlanningEnv(gym.Env):
         return self._camera
 
     def close(self) -> None:
-        self.closed = True
+        super().close()
         self._episode_ready = False
         if self._renderer is not None:
             self._renderer.close()
