@@ -65,16 +65,16 @@ def _instrument_view_planning(env, timer: PhaseTimer) -> None:
 def _instrument_grasp(env, timer: PhaseTimer) -> None:
     import mujoco
 
-    import liuxing_envs.envs.instrument_grasp as instrument_grasp
+    from liuxing_envs.sim import grasp_world
     from liuxing_envs.sim.camera import DepthCamera
     from liuxing_envs.sim.gripper import Gripper
 
     timer.wrap(mujoco, "mj_step", "physics (mj_step)")
     timer.wrap(env, "_apply_arm_action", "controller (IK)")
     timer.wrap(Gripper, "fingertip_forces", "force sensing")
-    timer.wrap(instrument_grasp._World, "impact_force", "force sensing")
+    timer.wrap(grasp_world.GraspWorld, "impact_force", "force sensing")
     timer.wrap(DepthCamera, "render", "depth rendering")
-    timer.wrap(instrument_grasp._World, "rgb", "RGB rendering")
+    timer.wrap(grasp_world.GraspWorld, "rgb", "RGB rendering")
     timer.wrap(env, "_observation", "observation")
 
 

@@ -16,7 +16,7 @@ from agents.curriculum import (
 )
 from agents.evaluation import make_env
 from agents.training import PeriodicEvaluation, build_vec_env, resolve_config
-from liuxing_envs.envs.instrument_grasp import READY_TCP
+from liuxing_envs.sim.grasp_world import READY_TCP
 from tests.test_train import run_train
 
 

@@ -16,12 +16,14 @@ from liuxing_envs.envs.instrument_grasp import (
     DEFAULT_APPROACH_ALLOWANCE,
     DEFAULT_FORCE_LIMIT,
     FORCE_SAMPLE_SUBSTEPS,
-    GRASP_FORCE_THRESHOLD,
     GUARD_MIN_GAP,
     GUARD_TOLERANCE,
+    InstrumentGraspEnv,
+)
+from liuxing_envs.sim.grasp_world import (
+    GRASP_FORCE_THRESHOLD,
     READY_OPENING,
     READY_TCP,
-    InstrumentGraspEnv,
     jaws_across,
 )
 from liuxing_envs.sim.gripper import MAX_OPENING

@@ -12,29 +12,25 @@ from gymnasium import spaces
 from liuxing_envs.envs.base import LiuxingEnv
 from liuxing_envs.forking import check_opengl_not_forked
 from liuxing_envs.opengl import new_renderer, require_opengl
-from liuxing_envs.sim.arm import Arm
-from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics, DepthCamera
+from liuxing_envs.sim.camera import BACKENDS, CameraIntrinsics
+from liuxing_envs.sim.grasp_world import (
+    TRAY_MARGIN,
+    GraspWorld,
+    jaws_across,
+    tool_down,
+)
 from liuxing_envs.sim.gripper import (
     FORCE_COMMAND_DAMPING,
     GRASP_NOSLIP_ITERATIONS,
     MAX_OPENING,
     SERVO_FORCE_LIMIT,
     TCP_SITE,
-    Gripper,
-    attach_gripper,
 )
 from liuxing_envs.sim.instruments import (
     INSTRUMENT_SETS,
-    add_instrument,
-    add_tray,
-    get_instrument,
 )
 from liuxing_envs.sim.scene import (
-    HOME_QPOS,
     OVERVIEW_CAMERA,
-    WRIST_CAMERA,
-    load_scene_spec,
-    reset_to_home,
 )
 from liuxing_envs.sim.stability import diverged_since, divergence_count
 from liuxing_envs.validation import (
@@ -103,9 +99,6 @@ MAX_APPROACH_LEAD_SLOPE = 1.0
 #: 7.5 cm/s at 3 N (``max_grip_force`` over their damping), as fast as the arm landings that pass
 #: the hard limit.
 DEFAULT_APPROACH_GUARD_FINGERS = False
-#: Closer than this (m) the direction from pad to instrument is left to the contact forces:
-#: it is not defined at a touch.
-APPROACH_MIN_GAP = 0.0005
 #: The approach lead limit guards pads down to this gap (m); a pad touching the instrument is
 #: left to the grip (its lead across the handle is what squeezes it).
 GUARD_MIN_GAP = 1e-5
@@ -155,36 +148,18 @@ SCALE_LIMITS = (0.1, 10.0)
 #: Depth observations are uint8 (what SB3's CNNs take): level 0 = no return, levels 1-255
 #: span this z-depth range linearly (about 2 mm per level); farther saturates at 255.
 DEPTH_RANGE = (0.1, 0.6)  # m
-#: A pad "holds" the instrument when it presses on it with at least this force (ManiSkill).
-GRASP_FORCE_THRESHOLD = 0.5  # N
 #: Forces are sampled every this many physics steps (10 ms at the default timestep).
 FORCE_SAMPLE_SUBSTEPS = 5
-#: Where the tool centre may go (a controller's workspace limit): over the inside of the tray,
-#: up to TCP_MAX_HEIGHT (m), and no lower than FLOOR_CLEARANCE above the tray floor (m): the
-#: fingertips are 4 mm below the tool centre, so they stop 1 mm short of it.
-TCP_MAX_HEIGHT = 0.40
-FLOOR_CLEARANCE = 0.005
-#: Ready pose: the wrist camera (70 mm off the tool axis, on its -y side) looks straight
-#: down from 0.45 m above the tray. The open fingers hide the image's top third (world +y), so
-#: the camera sits 5 cm to +y of the tray centre to see every placement.
-READY_TCP = np.array([0.5, 0.12, 0.305])
-READY_OPENING = 0.06
 #: Region (x, y) of the instrument's grasp point on the tray at reset, metres.
 PLACEMENT_REGION = ((0.44, -0.08), (0.56, 0.08))
-#: Placements are redrawn until the whole instrument lies this far inside the tray's rim.
-TRAY_MARGIN = 0.01  # m
 PLACEMENT_TRIES = 100
 #: The yaws a ``position`` reset option is checked at (and drawn from, where random draws
 #: miss the few at which it fits).
 CHECKED_YAWS = np.linspace(0, 2 * np.pi, 24, endpoint=False)
-SETTLE_STEPS = 50
 #: Bounds of the ``tool_start`` reset option: the tool centre's offset from the grasp point (m).
 TOOL_START_LOW = np.array([-0.05, -0.05, 0.0])
 TOOL_START_HIGH = np.array([0.05, 0.05, 0.30])
 TOOL_START_MAX_YAW_ERROR = math.pi / 2
-#: A ``tool_start`` that puts the gripper into the instrument or the tray is raised in steps of
-#: this much (m) until it touches nothing.
-TOOL_START_RAISE = 0.001
 FORCE_COLOUR_RANGE = 15.0  # N shown as full red on the pads in render()
 
 
@@ -214,19 +189,6 @@ def option_jaw_clearance(key, value) -> float:
     """The ``jaw_clearance`` reset option: metres of opening beyond the handle's width."""
     require_number(f"reset option {key}", value, 0.0, MAX_OPENING)
     return float(value)
-
-
-def jaws_across(handle_axis: np.ndarray) -> float:
-    """The tool yaw (rad, within +-pi/2) that puts the jaws across a handle along
-    ``handle_axis``: they close along the tool's y axis (either half turn will do; this one
-    keeps the wrist nearest its ready angle)."""
-    return math.atan(handle_axis[1] / handle_axis[0]) if handle_axis[0] else math.pi / 2
-
-
-def tool_down(yaw: float) -> np.ndarray:
-    """Rotation of the tool frame pointing straight down, turned by ``yaw`` about world z."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]])
 
 
 def _require_guardable_fingers(
@@ -714,13 +676,13 @@ class InstrumentGraspEnv(LiuxingEnv):
             None if servo_damping_ratio is None else float(servo_damping_ratio)
         )
         self._worlds = {
-            name: _World(name, timestep, self.arm_stiffness, self.servo_damping_ratio)
+            name: GraspWorld(name, timestep, self.arm_stiffness, self.servo_damping_ratio)
             for name in names
         }
         if gripper_control == "force":
             for world in self._worlds.values():
                 world.gripper.use_force_commands()
-        self.world: _World = self._worlds[names[0]]
+        self.world: GraspWorld = self._worlds[names[0]]
 
         action_dim = 5 if controller == "ee_delta" else 7
         self.action_space = spaces.Box(-1.0, 1.0, shape=(action_dim,), dtype=np.float32)
@@ -1034,7 +996,7 @@ class InstrumentGraspEnv(LiuxingEnv):
 
     def _apply_arm_action(self, arm_action: np.ndarray) -> tuple[list, list | None]:
         """Set the arm's servos for ``arm_action``: the pads the approach guard watches this
-        step (see :meth:`_World.approach_directions`; none when it is off) and their leads at
+        step (see :meth:`GraspWorld.approach_directions`; none when it is off) and their leads at
         the set-point left (None where the set-point did not change)."""
         world = self.world
         if self.controller == "joint_delta":
@@ -1182,7 +1144,7 @@ class InstrumentGraspEnv(LiuxingEnv):
             ]
             obs["instrument"] = np.array(instrument, dtype=np.float32)
         else:
-            depth = world.camera(self).render(world.data)
+            depth = world.camera(self.intrinsics, self._depth_backend).render(world.data)
             obs["depth"] = self.encode_depth(depth)[None]
         if self.obs_mode == "rgbd":
             obs["rgb"] = world.rgb(self.intrinsics).transpose(2, 0, 1).copy()
@@ -1221,335 +1183,3 @@ class InstrumentGraspEnv(LiuxingEnv):
 #: Counters of MjData's sleep state that its pickle (mujoco 4.0) does not restore, while it
 #: does restore the per-tree arrays they summarise: a clone with a sleeping instrument would
 #: stop with "mj_sleep: found sleeping tree 1 in island 0".
-_SLEEP_COUNTS = ("ntree_awake", "nbody_awake", "nparent_awake", "nv_awake")
-
-
-class _World:
-    """One compiled scene (arm, gripper, tray, one instrument) with its named queries."""
-
-    PREFIX = "instrument/"
-
-    def __init__(
-        self,
-        instrument: str,
-        timestep: float,
-        arm_stiffness: float,
-        servo_damping_ratio: float | None = DEFAULT_SERVO_DAMPING_RATIO,
-    ) -> None:
-        spec = load_scene_spec()
-        attach_gripper(spec)
-        self.tray = add_tray(spec)
-        centre, half = np.asarray(self.tray.center), np.asarray(self.tray.inner_half_size)
-        self.workspace_lower = np.array([*(centre - half), self.tray.floor_z + FLOOR_CLEARANCE])
-        self.workspace_upper = np.array([*(centre + half), TCP_MAX_HEIGHT])
-        self.instrument = get_instrument(instrument)
-        add_instrument(spec, self.instrument, self.PREFIX)
-        spec.option.timestep = timestep
-        # Let an instrument at rest sleep (MuJoCo's island sleeping): while nothing touches
-        # it, its ~10-30 tray contacts are neither collided nor solved: a physics step costs
-        # ~9 us instead of ~21 us. The arm and gripper are actuated and never sleep; any contact
-        # of theirs with the instrument (or any push on it) wakes it within that same step,
-        # so grasps and impacts are simulated as before. Resets wake everything.
-        spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
-        self.name = instrument
-        self.model = spec.compile()
-        self.data = mujoco.MjData(self.model)
-        self.arm = Arm(self.model, self.data)
-        self.gripper = Gripper(self.model, self.data)
-        model = self.model
-        self.body = model.body(self.PREFIX + "body").id
-        self._tree = model.body_treeid[self.body]
-        self._pad_geoms = set(self.gripper.pad_geoms.tolist())
-        self._joint_qpos = model.jnt_qposadr[model.joint(self.PREFIX + "joint").id]
-        self._joint_dof = model.jnt_dofadr[model.joint(self.PREFIX + "joint").id]
-        self._grasp_site = model.site(self.PREFIX + "grasp").id
-        self._tcp_site = model.site(TCP_SITE).id
-        self._geoms = np.flatnonzero(model.geom_bodyid == self.body)
-        self._fromto = np.zeros(6)
-        self._nominal_mass = model.body_mass[self.body]
-        self._nominal_inertia = model.body_inertia[self.body].copy()
-        self._friction_geoms = self._friction_partners()
-        self._nominal_friction = model.geom_friction[self._friction_geoms].copy()
-        self._arm_actuators = np.array(
-            [
-                model.actuator(n).id
-                for n in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
-            ]
-        )
-        # A softer servo keeps its damping ratio: kp scales, kv with its square root.
-        model.actuator_gainprm[self._arm_actuators, 0] *= arm_stiffness
-        model.actuator_biasprm[self._arm_actuators, 1] *= arm_stiffness
-        model.actuator_biasprm[self._arm_actuators, 2] *= math.sqrt(arm_stiffness)
-        if servo_damping_ratio is not None:
-            self._damp_at_ready_pose(servo_damping_ratio)
-        self._camera_id = model.camera(WRIST_CAMERA).id
-        robot = model.body_rootid[model.site_bodyid[self._tcp_site]]
-        self._on_robot = model.body_rootid[model.geom_bodyid] == robot
-        self._kinematics = mujoco.MjData(model)
-        self._camera: DepthCamera | None = None
-        self._rgb: mujoco.Renderer | None = None
-
-    def reset(
-        self,
-        grasp_xy,
-        yaw: float,
-        mass_scale: float,
-        friction_scale: float,
-        tool_start=None,
-        tool_yaw_error: float = 0.0,
-        jaw_clearance: float | None = None,
-    ) -> None:
-        """Place the instrument and the arm: in the ready pose, or (``tool_start``, an offset
-        in m) with the tool centre that far from the grasp point and the jaws across the
-        handle, turned from there by ``tool_yaw_error`` (rad) and open to the handle's width
-        plus ``jaw_clearance`` (m; default READY_OPENING); then let the scene settle."""
-        model, data = self.model, self.data
-        reset_to_home(model, data)
-        model.opt.noslip_iterations = 0  # the pads start clear of everything (see step())
-        model.body_mass[self.body] = self._nominal_mass * mass_scale
-        model.body_inertia[self.body] = self._nominal_inertia * mass_scale
-        # From the compiled values each time, so a factor of 1 restores them exactly.
-        model.geom_friction[self._friction_geoms] = self._nominal_friction * friction_scale
-        # Put the grasp point at grasp_xy: the body origin is offset from it in the plane.
-        c, s = math.cos(yaw), math.sin(yaw)
-        gx, gy = self.instrument.grasp_point[:2]
-        offset = np.array([c * gx - s * gy, s * gx + c * gy])
-        position = [*(np.asarray(grasp_xy) - offset), self.tray.floor_z]
-        data.qpos[self._joint_qpos : self._joint_qpos + 3] = position
-        data.qpos[self._joint_qpos + 3 : self._joint_qpos + 7] = [
-            math.cos(yaw / 2),
-            0.0,
-            0.0,
-            math.sin(yaw / 2),
-        ]
-        data.qvel[self._joint_dof : self._joint_dof + 6] = 0.0
-        opening = READY_OPENING
-        if jaw_clearance is not None:
-            opening = min(MAX_OPENING, self.instrument.grasp_width + jaw_clearance)
-        if tool_start is None:
-            self._place_tool(READY_TCP, 0.0, opening, tool_start)
-        else:
-            mujoco.mj_kinematics(model, data)
-            tool_yaw = jaws_across(self.grasp_axis()) + tool_yaw_error
-            tcp = np.clip(
-                self.grasp_point() + tool_start, self.workspace_lower, self.workspace_upper
-            )
-            self._place_tool(tcp, tool_yaw, opening, tool_start)
-            # An offset off the handle, or a turned tool, can put a finger into another part
-            # of the instrument (a ring, a tine) or the tray's rim: the settling steps would
-            # then shove it, or start the episode past the hard force limit.
-            while self._robot_touches_anything():
-                if tcp[2] >= self.workspace_upper[2]:
-                    raise ValueError(
-                        f"reset option tool_start {np.round(tool_start, 4).tolist()}: the "
-                        "gripper touches the scene even raised to the workspace's top"
-                    )
-                tcp = tcp + [0.0, 0.0, TOOL_START_RAISE]
-                tcp[2] = min(tcp[2], self.workspace_upper[2])
-                self._place_tool(tcp, tool_yaw, opening, tool_start)
-        mujoco.mj_forward(model, data)
-        mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
-
-    def _place_tool(self, tcp, tool_yaw: float, opening: float, tool_start) -> None:
-        """Teleport the arm, pointing down, to the tool centre ``tcp`` turned by ``tool_yaw``,
-        with the fingers ``opening`` apart."""
-        ready = self._pointing_down(tcp, tool_yaw)
-        if not ready.success:
-            raise ValueError(
-                f"reset option tool_start={np.asarray(tool_start).tolist()} puts the tool centre "
-                f"at {np.round(tcp, 4).tolist()}, which the arm cannot reach"
-            )
-        self.arm.set_qpos(ready.qpos)
-        self.gripper.set_opening(opening)
-
-    def _pointing_down(self, tcp, tool_yaw: float):
-        """The arm's IK (closed form, nearest home) for the tool pointing down at ``tcp``."""
-        return self.arm.solve_ik(
-            tcp,
-            tool_down(tool_yaw),
-            site=TCP_SITE,
-            seed_qpos=HOME_QPOS,
-            method="analytic",
-            check_collisions=False,
-        )
-
-    def _damp_at_ready_pose(self, ratio: float) -> None:
-        """Set each arm servo's kv for damping ``ratio`` at the ready pose: kv = 2 ratio
-        sqrt(kp m), m the joint's diagonal entry of the mass matrix there (armature included)."""
-        model = self.model
-        ready = self._pointing_down(READY_TCP, 0.0)
-        if not ready.success:
-            raise RuntimeError("the arm cannot reach the ready pose to damp its servos there")
-        scratch = mujoco.MjData(model)
-        scratch.qpos[self.arm.qpos_indices] = ready.qpos
-        mujoco.mj_forward(model, scratch)
-        unit, column = np.zeros(model.nv), np.zeros(model.nv)
-        for actuator in self._arm_actuators:
-            dof = model.jnt_dofadr[model.actuator_trnid[actuator, 0]]
-            unit[:] = 0.0
-            unit[dof] = 1.0
-            mujoco.mj_mulM(model, scratch, column, unit)
-            stiffness = model.actuator_gainprm[actuator, 0]
-            kv = 2.0 * ratio * math.sqrt(stiffness * column[dof])
-            model.actuator_biasprm[actuator, 2] = -kv
-
-    def _robot_touches_anything(self) -> bool:
-        """Whether a geom of the arm or gripper, as posed now, overlaps one of the scene's."""
-        model, data = self.model, self.data
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_collision(model, data)
-        on_robot = self._on_robot[data.contact.geom]
-        return bool(np.any(on_robot[:, 0] != on_robot[:, 1]))
-
-    def _friction_partners(self) -> np.ndarray:
-        """The geoms whose friction coefficients a contact of the instrument can take: its own
-        and every geom that can touch it at its contact priority or above. MuJoCo takes a
-        contact's friction from the geom of higher priority, and the element-wise maximum of
-        the two at equal priority: the pads and the tray outrank the instrument, so scaling
-        its own geoms alone would change none of its contacts with them."""
-        model = self.model
-        own = model.geom_bodyid == self.body
-        contype = np.bitwise_or.reduce(model.geom_contype[own])
-        conaffinity = np.bitwise_or.reduce(model.geom_conaffinity[own])
-        can_touch = ((model.geom_contype & conaffinity) | (model.geom_conaffinity & contype)) != 0
-        ranked = model.geom_priority >= model.geom_priority[own].min()
-        return np.flatnonzero(own | (can_touch & ranked))
-
-    def fits_on_tray(self, grasp_xy, yaw: float) -> bool:
-        """Whether the instrument, its grasp point at ``grasp_xy`` and turned by ``yaw``, lies
-        inside the tray's rim with TRAY_MARGIN to spare (its bounding-box corners do)."""
-        low, high = self.instrument.bounding_box[:, :2] - self.instrument.grasp_point[:2]
-        corners = np.array([[low[0], low[1]], [low[0], high[1]], [high[0], low[1]], high])
-        c, s = math.cos(yaw), math.sin(yaw)
-        placed = corners @ np.array([[c, s], [-s, c]]) + np.asarray(grasp_xy, dtype=float)
-        limit = np.asarray(self.tray.inner_half_size) - TRAY_MARGIN
-        return bool(np.all(np.abs(placed - self.tray.center) <= limit))
-
-    def arm_ctrl(self) -> np.ndarray:
-        return self.data.ctrl[self._arm_actuators].copy()
-
-    def set_arm_ctrl(self, qpos: np.ndarray) -> None:
-        self.data.ctrl[self._arm_actuators] = qpos
-
-    def tcp_position(self) -> np.ndarray:
-        return self.data.site_xpos[self._tcp_site].copy()
-
-    def tcp_yaw(self) -> float:
-        """Angle of the tool's x axis about world z (rad); the jaws close along its y axis."""
-        x_axis = self.data.site_xmat[self._tcp_site].reshape(3, 3)[:, 0]
-        return math.atan2(x_axis[1], x_axis[0])
-
-    def wrist_camera_pose(self, arm_qpos) -> tuple[np.ndarray, np.ndarray]:
-        """Wrist camera position and rotation (columns = camera axes) for arm joint angles,
-        by forward kinematics in a scratch copy (the hand-eye calibration a robot has)."""
-        scratch = self._posed(arm_qpos)
-        mujoco.mj_camlight(self.model, scratch)
-        return scratch.cam_xpos[self._camera_id].copy(), scratch.cam_xmat[self._camera_id].reshape(
-            3, 3
-        ).copy()
-
-    def _posed(self, arm_qpos) -> mujoco.MjData:
-        """The scratch data with the arm at ``arm_qpos`` and the rest as now, its kinematics
-        computed; the simulation itself is left alone."""
-        scratch = self._kinematics
-        scratch.qpos[:] = self.data.qpos
-        scratch.qpos[self.arm.qpos_indices] = arm_qpos
-        mujoco.mj_kinematics(self.model, scratch)
-        return scratch
-
-    def grasp_point(self) -> np.ndarray:
-        return self.data.site_xpos[self._grasp_site].copy()
-
-    def grasp_axis(self) -> np.ndarray:
-        return self.data.site_xmat[self._grasp_site].reshape(3, 3)[:, 0].copy()
-
-    def instrument_velocity(self) -> np.ndarray:
-        return self.data.qvel[self._joint_dof : self._joint_dof + 3].copy()
-
-    def grasped(self) -> bool:
-        """Both pads press on the instrument with at least GRASP_FORCE_THRESHOLD each (what
-        they press on the tray does not count)."""
-        return bool(np.all(self.gripper.pad_forces_on(self.body) >= GRASP_FORCE_THRESHOLD))
-
-    def asleep(self) -> bool:
-        """Whether the instrument is asleep: at rest and touched by nothing awake."""
-        return bool(self.data.tree_asleep[self._tree] >= 0)
-
-    def pad_approaches(self, distance: float) -> list[float]:
-        """How far (m) the arm's set-point would move each pad toward the instrument, for the
-        pads between APPROACH_MIN_GAP and ``distance`` of it (see :meth:`pad_leads`)."""
-        return self.pad_leads(self.approach_directions(distance), self.arm_ctrl())
-
-    def approach_directions(
-        self, distance: float, min_gap: float = APPROACH_MIN_GAP
-    ) -> list[tuple[int, np.ndarray, float]]:
-        """(pad geom, unit vector from it to the instrument's nearest point, gap in m) for
-        each pad between ``min_gap`` and ``distance`` (m) of the instrument."""
-        model, data = self.model, self.data
-        near = []
-        for pad in self.gripper.pad_geoms:
-            nearest, toward = distance, None
-            for geom in self._geoms:
-                gap = mujoco.mj_geomDistance(model, data, pad, geom, nearest, self._fromto)
-                if gap < nearest:
-                    nearest = gap
-                    toward = (self._fromto[3:] - self._fromto[:3]) / gap if gap > 0 else None
-            if toward is not None and nearest >= min_gap:
-                near.append((pad, toward, nearest))
-        return near
-
-    def pad_leads(self, near, arm_set_point) -> list[float]:
-        """How far (m) the arm at ``arm_set_point`` would carry each of the ``near`` pads
-        (from :meth:`approach_directions`) along its direction: the pad at the set-point's
-        pose (fingers as open as now) less where it is. The fingers' own closing is not
-        counted (its force is capped)."""
-        if not near:
-            return []
-        data, scratch = self.data, self._posed(arm_set_point)
-        return [
-            float((scratch.geom_xpos[pad] - data.geom_xpos[pad]) @ toward)
-            for pad, toward, _ in near
-        ]
-
-    def impact_force(self) -> float:
-        """Contact force (N) on the instrument from anything but the pads, less its weight."""
-        if self.asleep():
-            return 0.0  # at rest on the tray: no contacts of its own are computed, no impact
-        force = self.gripper.contact_force_on(self.body, exclude_geoms=self._pad_geoms)
-        weight = self.model.body_mass[self.body] * -self.model.opt.gravity[2]
-        return float(max(0.0, np.linalg.norm(force) - weight))
-
-    def camera(self, env: InstrumentGraspEnv) -> DepthCamera:
-        if self._camera is None:
-            self._camera = DepthCamera(
-                self.model, WRIST_CAMERA, env.intrinsics, backend=env._depth_backend
-            )
-        return self._camera
-
-    def rgb(self, intrinsics: CameraIntrinsics) -> np.ndarray:
-        check_opengl_not_forked()  # a renderer made before a fork hangs in the child
-        if self._rgb is None:
-            self._rgb = new_renderer(self.model, intrinsics.height, intrinsics.width)
-            self._rgb.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0  # 20 ms -> 1-2 ms
-        self._rgb.update_scene(self.data, camera=WRIST_CAMERA)
-        return self._rgb.render()
-
-    def close(self) -> None:
-        if self._camera is not None:
-            self._camera.close()
-            self._camera = None  # camera() makes a new one if the env is reset again
-        if self._rgb is not None:
-            self._rgb.close()
-            self._rgb = None
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_rgb"] = None
-        state["_sleep_counts"] = {name: getattr(self.data, name) for name in _SLEEP_COUNTS}
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        counts = state.pop("_sleep_counts", {})
-        self.__dict__.update(state)
-        for name, value in counts.items():
-            setattr(self.data, name, value)

@@ -4,10 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
-import os
-import weakref
 from collections.abc import Sequence
-from dataclasses import replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -31,25 +28,22 @@ from liuxing_envs.sim.camera import (
     DepthCamera,
     DepthNoise,
 )
-from liuxing_envs.sim.object_stage import PARKING_POSITION, ObjectStage, PlacedObject
+from liuxing_envs.sim.markers import add_frustum, add_points
+from liuxing_envs.sim.object_lists import load_objects
+from liuxing_envs.sim.object_stage import ObjectStage
 from liuxing_envs.sim.objects import (
     OBJECT_SETS,
     OBSERVABLE_CACHE_SIZE,
-    PROCEDURAL_PREFIX,
-    ObjectMesh,
-    get_object,
-    is_object_name,
-    load_mesh_file,
     observable_samples,
     surface_samples,
 )
 from liuxing_envs.sim.scene import (
-    ARM_BASE_BODY,
     OVERVIEW_CAMERA,
     WRIST_CAMERA,
     load_scene_spec,
     reset_to_home,
 )
+from liuxing_envs.sim.stand_ins import VariantScenes
 from liuxing_envs.sim.viewpoints import look_at, sphere_point
 from liuxing_envs.validation import (
     as_action,
@@ -120,7 +114,6 @@ WORKSPACE_UPPER = (0.85, 0.4, 0.5)
 VIEW_IK_RESTARTS = 4
 #: Ground-truth surface samples for reconstruction metrics (about 4 * area / τ² are needed).
 METRIC_SAMPLES = 100_000
-USER_MESH_SIZE = 0.15  # m, largest bounding-box side of users' meshes
 VIEW_HISTORY_FEATURES = 5
 RENDER_SIZE = (480, 640)
 RENDER_MAX_POINTS = 3000
@@ -466,7 +459,7 @@ class ViewPlanningEnv(LiuxingEnv):
         self.filter_arm_points = bool(filter_arm_points)
         self.render_mode = render_mode
 
-        meshes = _load_objects(object_set, objects)
+        meshes = load_objects(object_set, objects)
         self.object_names = tuple(mesh.name for mesh in meshes)
         self.scales = tuple(float(s) for s in scales)
         for mesh in meshes:
@@ -539,9 +532,9 @@ class ViewPlanningEnv(LiuxingEnv):
         self._depth_backend = depth_backend
         self._depth_noise = depth_noise
         self._camera: DepthCamera | None = None
-        # Stand-ins of the scene with one variant each (see _VariantScenes): ~3 ms apiece.
+        # Stand-ins of the scene with one variant each (see VariantScenes): ~3 ms apiece.
         self._variant_scenes = {
-            key: _VariantScenes(self.model, self._stage.meshes[key[0]], key[1])
+            key: VariantScenes(self.model, self._stage.meshes[key[0]], key[1])
             for key in self._ground_truth
         }
         self._noise_enabled = depth_noise is not None and depth_noise.enabled
@@ -707,9 +700,9 @@ class ViewPlanningEnv(LiuxingEnv):
             self._renderer = new_renderer(self.model, *RENDER_SIZE)
         self._renderer.update_scene(self.data, camera=OVERVIEW_CAMERA)
         scene = self._renderer.scene
-        _add_points(scene, self.map.points(), RENDER_MAX_POINTS)
+        add_points(scene, self.map.points(), RENDER_MAX_POINTS)
         position, rotation = self.camera.pose(self.data)
-        _add_frustum(scene, position, rotation, self.intrinsics, length=0.25)
+        add_frustum(scene, position, rotation, self.intrinsics, length=0.25)
         return self._renderer.render().copy()
 
     def __deepcopy__(self, memo: dict) -> ViewPlanningEnv:
@@ -1007,147 +1000,6 @@ class ViewPlanningEnv(LiuxingEnv):
         }
 
 
-# ---------------------------------------------------------------------- helpers
-class _VariantScenes:
-    """Stand-ins of the tabletop scene with one object variant only.
-
-    The env's model holds one body per (object, scale) variant, parked when not shown: 74
-    bodies for the train set. Forward kinematics and ``mj_multiRay`` visit every body and
-    geom, parked or not, so the hot loops run in stand-ins that hold the table and this
-    variant only, with the same names, geoms and world frame, giving identical answers:
-
-    * the stand-in with the arm is the arm's collision scene (:meth:`Arm.use_collision_scene`),
-      where a path waypoint's kinematics cost a third of the env model's;
-    * ray casting uses the same stand-in, synced from the live data before each image, or, for
-      the views in which :meth:`DepthCamera.may_see_geoms` rules out every arm geom (most of
-      them: the arm is behind the camera), one without the arm. Casting into them costs about
-      30% and 45% less than into the env's model.
-    """
-
-    #: Arena of a stand-in's data: kinematics, a few contacts and ray casting need a few KiB.
-    MEMORY = 1 << 18
-
-    def __init__(self, live: mujoco.MjModel, mesh, scale: float) -> None:
-        self._with_arm = _StandIn(mesh, scale, with_arm=True)
-        self._without_arm = _StandIn(mesh, scale, with_arm=False)
-        model = self._with_arm.model
-        for obj, count in (
-            (mujoco.mjtObj.mjOBJ_BODY, self._with_arm.nbody),
-            (mujoco.mjtObj.mjOBJ_GEOM, self._with_arm.ngeom),
-        ):
-            for i in range(count):
-                if mujoco.mj_id2name(live, obj, i) != mujoco.mj_id2name(model, obj, i):
-                    raise RuntimeError("the stand-in scene does not match the env's model")
-        # The arm's geoms: the shared ones not on the world body.
-        self._arm_geoms = np.flatnonzero(model.geom_bodyid[: self._with_arm.ngeom] > 0)
-        if self._without_arm.model.ngeom != model.ngeom - self._arm_geoms.size:
-            raise RuntimeError("the arm-free stand-in holds more than the world and object")
-
-    def collision_scene(self, placed: PlacedObject) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        """The stand-in with the arm, ``placed`` on the table, for the arm's collision checks."""
-        return self._with_arm.model, self._with_arm.place(placed)
-
-    def ray_scene(
-        self, live: mujoco.MjData, placed: PlacedObject, camera: DepthCamera
-    ) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        """The stand-in to cast the live view into, with ``placed`` on the table."""
-        stand_in = self._with_arm
-        if not camera.may_see_geoms(live, self._arm_geoms).any():
-            stand_in = self._without_arm
-        return stand_in.model, stand_in.sync(live, placed)
-
-
-class _StandIn:
-    """One stand-in model of :class:`_VariantScenes` and its kinematic state.
-
-    Its first :attr:`nbody` bodies and :attr:`ngeom` geoms (world, table, arm, camera; none
-    of the arm's without it) have the ids of the live model's and are posed from it:
-    ObjectStage appends the object after the scene's own bodies.
-    """
-
-    def __init__(self, mesh, scale: float, *, with_arm: bool) -> None:
-        self._stage = ObjectStage([mesh], (scale,))
-        self.model = _stand_in_model(mesh, scale, with_arm)
-        self.data = mujoco.MjData(self.model)
-        # The model is shared by the envs of a process, and binding switches its one
-        # variant's collisions off until it is placed: placing it here keeps them on for the
-        # envs whose stand-in was placed before. Each env poses the variant in its own data.
-        self._stage.bind(self.model, self.data)
-        self._stage.place(mesh.name, scale, PARKING_POSITION, 0.0)
-        self._placed: PlacedObject | None = None
-        self.nbody = self.model.nbody - 1 if with_arm else 0
-        self.ngeom = self.model.ngeom - 1 if with_arm else 0
-
-    def __deepcopy__(self, memo: dict) -> _StandIn:
-        """A copy posed as this one, sharing the model as the process's envs do, in new data:
-        a copied MjData is resident in full (about 1 MiB), a new one only where it is used."""
-        clone = copy.copy(self)
-        memo[id(self)] = clone
-        data = memo.get(id(self.data))
-        if data is None:
-            data = memo[id(self.data)] = mujoco.MjData(self.model)
-            what = mujoco.mjtState.mjSTATE_INTEGRATION
-            state = np.empty(mujoco.mj_stateSize(self.model, what))
-            mujoco.mj_getState(self.model, self.data, state, what)
-            mujoco.mj_setState(self.model, data, state, what)
-            mujoco.mj_kinematics(self.model, data)
-        clone.data = data
-        memo.setdefault(id(self.model), self.model)
-        clone._stage = copy.deepcopy(self._stage, memo)
-        clone._placed = copy.deepcopy(self._placed, memo)
-        return clone
-
-    def place(self, placed: PlacedObject) -> mujoco.MjData:
-        """The data with ``placed`` on the table, as the live object is."""
-        if placed is not self._placed:  # a new episode
-            self._stage.place(placed.name, placed.scale, placed.position, placed.yaw)
-            self._placed = placed
-            mujoco.mj_kinematics(self.model, self.data)
-        return self.data
-
-    def sync(self, live: mujoco.MjData, placed: PlacedObject) -> mujoco.MjData:
-        """The data with ``placed`` on the table and the arm (if any) posed as in ``live``."""
-        d, nbody, ngeom = self.place(placed), self.nbody, self.ngeom
-        if not nbody:
-            return d  # the object is all that moves
-        # Objects are mocap bodies: the arm's joints are the whole qpos of both models.
-        d.qpos[:] = live.qpos
-        mujoco.mj_kinematics(self.model, d)  # places the object from its mocap pose
-        # The shared bodies' poses are copied, not just recomputed: after mj_step (dynamic
-        # motion) the live poses lag qpos by one integration step, and the image must show
-        # what the live data shows.
-        for name in ("xpos", "xquat", "xmat", "xipos", "ximat"):
-            getattr(d, name)[:nbody] = getattr(live, name)[:nbody]
-        d.geom_xpos[:ngeom] = live.geom_xpos[:ngeom]
-        d.geom_xmat[:ngeom] = live.geom_xmat[:ngeom]
-        return d
-
-
-#: The stand-in models alive in this process, by (mesh, scale, with_arm): an entry goes with
-#: the last env that uses it, so a process making envs for one large mesh after another does
-#: not keep them all, and any number of variants is shared.
-_STAND_IN_MODELS: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
-
-
-def _stand_in_model(mesh, scale: float, with_arm: bool) -> mujoco.MjModel:
-    """The compiled stand-in of one variant (see :class:`_VariantScenes`), shared by every env
-    of a process: about 0.34 MB and 3 ms apiece, so each env after the first is about 0.3 GB
-    smaller and 3 s faster to make with the 320 procedural variants. Each env's
-    :class:`_StandIn` leaves its one variant shown and collidable whenever it places it."""
-    key = (mesh, float(scale), with_arm)
-    model = _STAND_IN_MODELS.get(key)
-    if model is None:
-        spec = load_scene_spec()
-        spec.memory = _VariantScenes.MEMORY
-        if not with_arm:
-            spec.delete(spec.body(ARM_BASE_BODY))
-            for name in list(spec.keys):  # the keyframes hold the arm's joints
-                spec.delete(name)
-        ObjectStage([mesh], (scale,)).add_to_spec(spec)
-        model = _STAND_IN_MODELS[key] = spec.compile()
-    return model
-
-
 @lru_cache(maxsize=OBSERVABLE_CACHE_SIZE)
 def _shared_tracker(
     mesh,
@@ -1171,69 +1023,6 @@ def _shared_tracker(
     return CoverageTracker(truth.points, epsilon, observable=truth.observable & above_crop)
 
 
-def _load_objects(object_set: str, objects: Sequence[str] | None) -> list:
-    if objects is None:
-        return [get_object(name) for name in OBJECT_SETS[object_set]]
-    expected = (
-        "objects must be a non-empty list of library names, procedural_<n> names or mesh file paths"
-    )
-    if isinstance(objects, str | os.PathLike):
-        raise ValueError(f"{expected}, got the single {objects!r} (wrap it in a list)")
-    try:
-        items = list(objects)
-    except TypeError:
-        raise ValueError(f"{expected}, got {objects!r}") from None
-    if not items or not all(isinstance(item, str | os.PathLike) for item in items):
-        raise ValueError(f"{expected}, got {objects!r}")
-    meshes = []
-    for item in items:
-        if is_object_name(str(item)):
-            meshes.append(get_object(str(item)))
-            continue
-        try:
-            meshes.append(load_mesh_file(item, size=USER_MESH_SIZE))
-        except (OSError, ValueError) as error:
-            raise type(error)(
-                f"objects: {str(item)!r} is not a library object "
-                f"({', '.join(OBJECT_SETS['all'])}) or a procedural shape "
-                f"({PROCEDURAL_PREFIX}<n>), and as a mesh file: {error}"
-            ) from error
-    return _named_apart(items, meshes)
-
-
-def _named_apart(items: list, meshes: list[ObjectMesh]) -> list[ObjectMesh]:
-    """``meshes`` (loaded from ``items``) renamed where their names clash: a mesh file is then
-    named by as much of its path as tells it apart, its file name and then its folders
-    (``box.stl`` and ``box.ply``; ``chair1/models/model_normalized.obj``, as in ShapeNet).
-    An item listed twice, which no path tells apart, is refused."""
-    paths = [None if is_object_name(str(item)) else Path(item).resolve() for item in items]
-    levels = [0] * len(items)
-
-    def name(index: int) -> str:
-        path, level = paths[index], levels[index]
-        if path is None or level == 0:
-            return meshes[index].name
-        return "/".join(path.parts[-level:])
-
-    while True:
-        names = [name(index) for index in range(len(items))]
-        clashing = [index for index, n in enumerate(names) if names.count(n) > 1]
-        if not clashing:
-            break
-        longer = [
-            i for i in clashing if paths[i] is not None and levels[i] < len(paths[i].parts) - 1
-        ]
-        if not longer:
-            twice = [str(items[i]) for i in clashing if names[i] == names[clashing[0]]]
-            raise ValueError(f"objects lists the same object more than once: {twice}")
-        for index in longer:
-            levels[index] += 1
-    return [
-        mesh if mesh.name == new else replace(mesh, name=new)
-        for mesh, new in zip(meshes, names, strict=True)
-    ]
-
-
 def _candidate_views(
     azimuths_deg, elevations_deg, radius
 ) -> tuple[tuple[float, float, float], ...]:
@@ -1244,39 +1033,3 @@ def _candidate_views(
     ]
     views.append((0.0, math.pi / 2, float(radius)))
     return tuple(views)
-
-
-def _add_points(scene: mujoco.MjvScene, points: np.ndarray, limit: int) -> None:
-    if len(points) > limit:
-        points = points[np.linspace(0, len(points) - 1, limit).astype(int)]
-    size = np.array([0.004, 0.0, 0.0])
-    rgba = np.array([0.1, 0.9, 0.3, 1.0], dtype=np.float32)
-    eye = np.eye(3).ravel()
-    for point in points:
-        if scene.ngeom >= scene.maxgeom:
-            return
-        mujoco.mjv_initGeom(
-            scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, size, point, eye, rgba
-        )
-        scene.ngeom += 1
-
-
-def _add_frustum(scene, position, rotation, intrinsics: CameraIntrinsics, length: float) -> None:
-    half_h = math.tan(math.radians(intrinsics.fovy_deg) / 2)
-    half_w = half_h * intrinsics.width / intrinsics.height
-    rgba = np.array([1.0, 0.85, 0.1, 1.0], dtype=np.float32)
-    corners = [
-        position + length * (rotation @ np.array([sx * half_w, sy * half_h, -1.0]))
-        for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))
-    ]
-    segments = [(position, c) for c in corners]
-    segments += [(corners[i], corners[(i + 1) % 4]) for i in range(4)]
-    for start, end in segments:
-        if scene.ngeom >= scene.maxgeom:
-            return
-        geom = scene.geoms[scene.ngeom]
-        mujoco.mjv_initGeom(
-            geom, mujoco.mjtGeom.mjGEOM_LINE, np.zeros(3), np.zeros(3), np.eye(3).ravel(), rgba
-        )
-        mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_LINE, 3.0, start, end)
-        scene.ngeom += 1
