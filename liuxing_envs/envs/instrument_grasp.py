@@ -918,7 +918,6 @@ class InstrumentGraspEnv(LiuxingEnv):
 
     def close(self) -> None:
         super().close()
-        self._episode_ready = False
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

@@ -741,7 +741,6 @@ class ViewPlanningEnv(LiuxingEnv):
 
     def close(self) -> None:
         super().close()
-        self._episode_ready = False
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
