@@ -26,7 +26,7 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 
 install: $(VENV)/.installed
 
-# The default run: PPO on ViewPlanning-v0, then its held-out score against the four-view baseline.
+# The default run: PPO on ViewPlanning-v1, then its held-out score against the four-view baseline.
 run: $(VENV)/.installed
 	$(BIN)/python train.py
 
@@ -34,7 +34,7 @@ run: $(VENV)/.installed
 # reference baselines of both environments, 100 held-out episodes each.
 SHIPPED_POLICIES := $(patsubst %/config.yml,%,$(sort $(wildcard policies/*/*/config.yml)))
 report: $(VENV)/.installed
-	$(BIN)/python evaluate.py $(SHIPPED_POLICIES) --env InstrumentGrasp-v0 \
+	$(BIN)/python evaluate.py $(SHIPPED_POLICIES) --env InstrumentGrasp-v1 \
 		--out reports/shipped --save-reconstructions 1 --video
 
 # benchmarks/RESULTS.md: throughput, time split, physics limit, FetchPickAndPlace-v4 side by

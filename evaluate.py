@@ -1,18 +1,18 @@
 """Evaluate trained policies and scripted baselines on the same seeded episodes and write a
 report (report.md, report.json, figures, optional videos).
 
-    python evaluate.py policies/ViewPlanning-v0/ppo              # + four-view and the oracle
-    python evaluate.py runs/ViewPlanning-v0/ppo_seed0_* --episodes 100 --out reports/ppo
-    python evaluate.py --env ViewPlanning-v0 four-view uniform random --episodes 20
-    python evaluate.py policies/InstrumentGrasp-v0/sac --baselines scripted-grasp,squeeze --video
-    python evaluate.py model.zip --env InstrumentGrasp-v0 --env-kwargs obs_mode=state
-    python evaluate.py model.zip --env ViewPlanning-v0 --raw-observations  # not normalised
+    python evaluate.py policies/ViewPlanning-v1/ppo              # + four-view and the oracle
+    python evaluate.py runs/ViewPlanning-v1/ppo_seed0_* --episodes 100 --out reports/ppo
+    python evaluate.py --env ViewPlanning-v1 four-view uniform random --episodes 20
+    python evaluate.py policies/InstrumentGrasp-v1/sac --baselines scripted-grasp,squeeze --video
+    python evaluate.py model.zip --env InstrumentGrasp-v1
+    python evaluate.py model.zip --env ViewPlanning-v1 --raw-observations  # not normalised
 
 Sources are run folders (their best model; --final-model for the last one), model .zip files
 (a zip inside a run folder takes the run's config; a lone one needs --env, and its
 vecnormalize.pkl beside it or --raw-observations) or baseline names:
-ViewPlanning-v0: four-view, uniform, random, greedy-oracle (privileged: it reads the ground
-truth); InstrumentGrasp-v0: scripted-grasp, squeeze, random, privileged-grasp (the script
+ViewPlanning: four-view, uniform, random, greedy-oracle (privileged: it reads the ground
+truth); InstrumentGrasp: scripted-grasp, squeeze, random, privileged-grasp (the script
 reading the handle from the simulator). Several run folders of one algorithm with the same
 env kwargs and training settings are aggregated as training seeds (IQM and mean, each with
 a bootstrap interval over seeds and rliable's stratified one; probability of improvement
@@ -65,12 +65,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--seed", type=int, default=1_000_000, help="seed of the first episode (default: 1000000)"
     )
     episodes.add_argument(
-        "--object-set", choices=OBJECT_SPLITS, help="ViewPlanning-v0's split (default: held_out)"
+        "--object-set", choices=OBJECT_SPLITS, help="ViewPlanning's split (default: held_out)"
     )
     episodes.add_argument(
         "--instrument-set",
         choices=INSTRUMENT_SPLITS,
-        help="InstrumentGrasp-v0's split (default: held_out)",
+        help="InstrumentGrasp's split (default: held_out)",
     )
     episodes.add_argument(
         "--env-kwargs",
@@ -156,6 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
     from agents import contestants as contest
     from agents import report
+    from liuxing_envs.registration import family
 
     try:
         if args.env is not None:
@@ -178,18 +179,18 @@ def main(argv: list[str] | None = None) -> int:
             splits={
                 env: split
                 for env, split in (
-                    ("ViewPlanning-v0", args.object_set),
-                    ("InstrumentGrasp-v0", args.instrument_set),
+                    ("ViewPlanning", args.object_set),
+                    ("InstrumentGrasp", args.instrument_set),
                 )
                 if split is not None
             },
             best=not args.final_model,
             raw_observations=args.raw_observations,
         )
-        if reconstruction_flags and all(c.env_id != "ViewPlanning-v0" for c in contestants):
+        if reconstruction_flags and all(family(c.env_id) != "ViewPlanning" for c in contestants):
             parser.error(
-                f"{' and '.join(reconstruction_flags)} score ViewPlanning-v0 episodes by "
-                "reconstruction; no contestant here runs ViewPlanning-v0"
+                f"{' and '.join(reconstruction_flags)} score ViewPlanning episodes by "
+                "reconstruction; no contestant here runs a ViewPlanning task"
             )
         settings = report.Settings(
             episodes=args.episodes,

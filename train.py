@@ -1,17 +1,16 @@
 """Train PPO or SAC on a liuxing_envs environment.
 
-    python train.py                                   # ViewPlanning-v0, PPO, ~15 min on 2 cores
-    python train.py --env InstrumentGrasp-v0 --algo sac --seed 1 -n 300000
+    python train.py                                   # ViewPlanning-v1, PPO, ~15 min on 2 cores
+    python train.py --env InstrumentGrasp-v1 --algo sac --seed 1 -n 300000
     python train.py --algo ppo --hyperparams learning_rate=1e-4 policy_kwargs.net_arch=[64,64]
     python train.py --env-kwargs view_budget=6 --eval-freq 2000
-    python train.py --resume runs/ViewPlanning-v0/ppo_seed0_20261121-101500 [-n 120000]
-    python train.py --env InstrumentGrasp-v0 --algo sac \
-        --init-from policies/InstrumentGrasp-v0/sac --env-kwargs servo_damping_ratio=0.7 \
-        force_penalty=2.0 failure_penalty=50 approach_lead_limit=0.00025 \
-        approach_lead_slope=0.3 approach_guard_fingers=true \
+    python train.py --resume runs/ViewPlanning-v1/ppo_seed0_20261121-101500 [-n 120000]
+    python train.py --env InstrumentGrasp-v1 --algo sac \
+        --init-from policies/InstrumentGrasp-v1/sac \
         --hyperparams demonstrations=null start_curriculum=null learning_rate=3e-5
 
-Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id) or --config; each
+Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id; a variant id uses
+its task's -v1 entry) or --config; each
 run writes a folder (see agents/run_folder.py) with its resolved config, models, checkpoints,
 evaluation history and learning curve. Ctrl-C saves a checkpoint that --resume continues.
 """
@@ -41,7 +40,7 @@ RUN_DEFINING_FLAGS = (
 def build_parser() -> argparse.ArgumentParser:
     parser = script_parser("train.py", __doc__)
     run = parser.add_argument_group("what to train")
-    run.add_argument("--env", help="environment id (default: ViewPlanning-v0)")
+    run.add_argument("--env", help="environment id (default: ViewPlanning-v1)")
     run.add_argument("--algo", help="ppo or sac (default: ppo)")
     run.add_argument("-n", "--timesteps", type=int, help="total env steps (default: from YAML)")
     run.add_argument("--seed", type=int, help="random seed (default: 0)")

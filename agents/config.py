@@ -369,16 +369,24 @@ def load_yaml(path: str | Path) -> dict:
 
 
 def default_hyperparams(algo: str, env_id: str, config_file: str | Path | None = None) -> dict:
-    """The entry for ``env_id`` in ``config_file`` (default: ``agents/hyperparams/<algo>.yml``).
+    """The entry for ``env_id`` in ``config_file`` (default: ``agents/hyperparams/<algo>.yml``),
+    or else for its task's benchmark id (``InstrumentGraspRGBD-v1`` -> ``InstrumentGrasp-v1``).
 
     A custom file may hold a single entry without an env-id key; it is then used as is.
     """
     require_known("algorithm", algo, ALGOS)
     path = Path(config_file) if config_file else HYPERPARAMS_DIR / f"{algo}.yml"
     content = load_yaml(path)
+    from liuxing_envs.registration import BY_ID, benchmark_id, family
+
+    # A variant or an older version of a task trains with its benchmark id's entry unless
+    # the file has one of its own.
+    fallback = benchmark_id(family(env_id)) if env_id in BY_ID else env_id
     if env_id in content:
         entry = content[env_id]
-    elif config_file and not any(key.endswith("-v0") for key in content):
+    elif fallback in content:
+        entry = content[fallback]
+    elif config_file and not any(key in BY_ID for key in content):
         entry = content
     else:
         raise ConfigError(

@@ -14,17 +14,19 @@ from pathlib import Path
 
 from agents import run_folder
 from agents.config import check_env_kwargs, closest, require_known
-from agents.evaluation import HELD_OUT_SPLIT, SB3Policy, make_env, task_for
+from agents.evaluation import HELD_OUT_SPLIT, TASKS, SB3Policy, make_env, task_for
 from agents.grasp_baselines import GRASP_BASELINES
 from agents.spaces import describe_space, same_space
 from agents.training import ALGO_CLASSES
 from agents.view_baselines import BASELINES as VIEW_BASELINES
+from liuxing_envs.registration import family
 
-#: Baselines by environment. ``greedy-oracle`` reads the ground truth: reported as a
-#: privileged reference, never as a competitor.
+#: Baselines by task family (every version and variant of a task runs them).
+#: ``greedy-oracle`` reads the ground truth: reported as a privileged reference, never as a
+#: competitor.
 BASELINES: dict[str, Mapping[str, Callable]] = {
-    "ViewPlanning-v0": VIEW_BASELINES,
-    "InstrumentGrasp-v0": GRASP_BASELINES,
+    "ViewPlanning": VIEW_BASELINES,
+    "InstrumentGrasp": GRASP_BASELINES,
 }
 PRIVILEGED_BASELINES = frozenset({"greedy-oracle"})
 
@@ -50,7 +52,9 @@ class Contestant:
 
 
 def check_env_id(env_id: str) -> str:
-    return require_known("environment", env_id, list(BASELINES))
+    import liuxing_envs
+
+    return require_known("environment", env_id, liuxing_envs.ENV_IDS)
 
 
 def check_algo(algo: str) -> str:
@@ -59,7 +63,7 @@ def check_algo(algo: str) -> str:
 
 # ---------------------------------------------------------------------- baselines
 def baseline_names(env_id: str) -> list[str]:
-    return list(BASELINES[env_id])
+    return list(BASELINES[family(env_id)])
 
 
 def reference_baselines(env_id: str) -> list[str]:
@@ -78,7 +82,7 @@ def baseline_contestant(name: str, env_id: str, env_kwargs: Mapping) -> Contesta
             f"unknown baseline {name!r} for {env_id}{closest(name, allowed)}; "
             f"allowed: {', '.join(allowed)}"
         )
-    make_policy = BASELINES[env_id][name]
+    make_policy = BASELINES[family(env_id)][name]
     return Contestant(
         label=name,
         group=name,
@@ -305,7 +309,7 @@ def build_contestants(
     Each policy runs in its run's env kwargs, less the scene it was trained on (its split or
     explicit list of objects or instruments), updated with ``env_kwargs``; the baselines of
     an environment run in its first policy's (so the same view budget, say), plus what they
-    read. Every contestant is put on ``splits[env_id]`` (default ``held_out``) unless
+    read. Every contestant is put on ``splits[task family]`` (default ``held_out``) unless
     ``env_kwargs`` names objects or instruments explicitly; a split for an environment that
     no contestant runs in is refused, as is a list of contestants left empty."""
     env_kwargs = dict(env_kwargs or {})
@@ -348,7 +352,7 @@ def build_contestants(
             raise ContestantError(
                 f"{', '.join(map(repr, named_baselines))}: no such run folder or model file, "
                 "and baseline names need --env ("
-                + "; ".join(f"{e}: {', '.join(baseline_names(e))}" for e in BASELINES)
+                + "; ".join(f"{task}: {', '.join(names)}" for task, names in BASELINES.items())
                 + ")"
             )
         raise ContestantError(
@@ -371,7 +375,7 @@ def build_contestants(
                 f"the {split.replace('_', ' ')} is chosen with {task.split_flag}, "
                 f"not --env-kwargs {split}=..."
             )
-        if task.explicit_scene_kwarg in env_kwargs and current in splits:
+        if task.explicit_scene_kwarg in env_kwargs and family(current) in splits:
             raise ContestantError(
                 f"{task.split_flag} and --env-kwargs {task.explicit_scene_kwarg}=... both "
                 f"choose {current}'s episodes; give one of them"
@@ -406,17 +410,19 @@ def build_contestants(
             f"nothing to evaluate on {', '.join(env_ids)}: --baselines none leaves no "
             "contestant; give a run folder, a model file or baseline names"
         )
-    for split_env in splits:
-        if split_env not in env_ids:
-            flag = task_for(split_env).split_flag
+    for split_family in splits:
+        if split_family not in {family(current) for current in env_ids}:
+            flag = TASKS[split_family].split_flag
             raise ContestantError(
-                f"{flag} chooses {split_env}'s episodes, but nothing here runs in "
-                f"{split_env} (evaluating {', '.join(env_ids)}); drop {flag}"
+                f"{flag} chooses {split_family} episodes, but nothing here runs a "
+                f"{split_family} task (evaluating {', '.join(env_ids)}); drop {flag}"
             )
     for contestant in contestants:
         task = task_for(contestant.env_id)
         if task.explicit_scene_kwarg not in contestant.env_kwargs:
-            contestant.env_kwargs[task.split_kwarg] = splits.get(contestant.env_id, HELD_OUT_SPLIT)
+            contestant.env_kwargs[task.split_kwarg] = splits.get(
+                family(contestant.env_id), HELD_OUT_SPLIT
+            )
     if raw_observations and not any(_scored_raw(c) for c in contestants):
         # It would be ignored: it names no source, so it cannot be what the user meant.
         raise ContestantError(

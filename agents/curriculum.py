@@ -59,9 +59,11 @@ from liuxing_envs.envs.instrument_grasp import (
     TOOL_START_LOW,
     TOOL_START_MAX_YAW_ERROR,
 )
+from liuxing_envs.registration import family
 from liuxing_envs.sim.gripper import MAX_OPENING
 
-ENV_IDS = ("InstrumentGrasp-v0",)
+#: The task families whose episodes can start near the grasp.
+FAMILIES = ("InstrumentGrasp",)
 #: Settings of the starts (:class:`StartNearGrasp`).
 START_DEFAULTS = {
     "probability": 0.5,
@@ -213,8 +215,8 @@ def check_start_curriculum(env_id: str, settings) -> dict | None:
     """The ``start_curriculum`` harness entry with defaults filled in, or ConfigError."""
     if settings is None:
         return None
-    if env_id not in ENV_IDS:
-        raise ConfigError(f"start_curriculum is for {', '.join(ENV_IDS)} only, not {env_id}")
+    if family(env_id) not in FAMILIES:
+        raise ConfigError(f"start_curriculum is for {', '.join(FAMILIES)} tasks only, not {env_id}")
     if not isinstance(settings, Mapping):
         raise ConfigError(f"start_curriculum must be a mapping of {', '.join(DEFAULTS)}")
     for key in settings:

@@ -42,8 +42,10 @@ from stable_baselines3.common.logger import Logger
 from agents.config import ConfigError, int_at_least, number_in, require_known
 from agents.evaluation import make_env
 from agents.grasp_baselines import PrivilegedGrasp
+from liuxing_envs.registration import family
 
-EXPERTS = {"InstrumentGrasp-v0": {"privileged-grasp": PrivilegedGrasp}}
+#: Experts by task family.
+EXPERTS = {"InstrumentGrasp": {"privileged-grasp": PrivilegedGrasp}}
 DEFAULTS = {"episodes": 50, "action_noise": 0.1, "gripper_noise": 0.005, "pretrain_steps": 0}
 PRETRAIN_BATCH_SIZE = 256
 #: Demonstration episodes use their own seeds, apart from training and evaluation.
@@ -76,14 +78,17 @@ def check_demonstrations(env_id: str, algo: str, spec) -> dict | None:
         )
     if algo != "sac":
         raise ConfigError(f"demonstrations fill a replay buffer: use them with sac, not {algo}")
-    if env_id not in EXPERTS:
-        raise ConfigError(f"no expert for {env_id}; demonstrations exist for {', '.join(EXPERTS)}")
+    if family(env_id) not in EXPERTS:
+        raise ConfigError(
+            f"no expert for {env_id}; demonstrations exist for {', '.join(EXPERTS)} tasks"
+        )
+    experts = EXPERTS[family(env_id)]
     for key in spec:
         require_known("demonstrations key", key, ("expert", *DEFAULTS))
     resolved = {**DEFAULTS, **spec}
     if "expert" not in spec:
-        raise ConfigError(f"demonstrations need an expert, one of {', '.join(EXPERTS[env_id])}")
-    require_known("expert", resolved["expert"], tuple(EXPERTS[env_id]))
+        raise ConfigError(f"demonstrations need an expert, one of {', '.join(experts)}")
+    require_known("expert", resolved["expert"], tuple(experts))
     int_at_least("demonstrations.episodes", resolved["episodes"])
     int_at_least("demonstrations.pretrain_steps", resolved["pretrain_steps"], minimum=0)
     for key in ("action_noise", "gripper_noise"):
@@ -142,7 +147,7 @@ def record_demonstrations(config: dict) -> tuple[list[Transition], int]:
     """The expert's episodes in the training env, step by step, and how many succeeded."""
     spec = config["demonstrations"]
     env = make_env(config["env_id"], config["env_kwargs"])
-    expert = EXPERTS[config["env_id"]][spec["expert"]](env)
+    expert = EXPERTS[family(config["env_id"])][spec["expert"]](env)
     action_size = env.action_space.shape[0]  # the gripper is the last dimension
     largest = np.array([spec["action_noise"]] * (action_size - 1) + [spec["gripper_noise"]])
     sweep = np.linspace(0.0, 1.0, spec["episodes"])[:, None] * largest

@@ -21,6 +21,7 @@ from agents.grasp_baselines import ScriptedGrasp
 from agents.spaces import describe_space, same_space
 from agents.statistics import bootstrap_ci, interval_text, wilson_interval
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle
+from liuxing_envs.registration import BY_ID, family
 
 #: Evaluation seeds start here, away from the training (``seed``) and periodic-evaluation
 #: (``seed + PERIODIC_EVAL_SEED_OFFSET``) streams.
@@ -62,8 +63,9 @@ class Task:
         return {self.split_kwarg: HELD_OUT_SPLIT}
 
 
+#: What a report measures, by task family (every version and variant of a task).
 TASKS = {
-    "ViewPlanning-v0": Task(
+    "ViewPlanning": Task(
         metric="coverage",
         metric_label="final coverage",
         split_kwarg="object_set",
@@ -74,7 +76,7 @@ TASKS = {
         reference="greedy-oracle",
         make_reference=GreedyOracle,
     ),
-    "InstrumentGrasp-v0": Task(
+    "InstrumentGrasp": Task(
         metric="is_success",
         metric_label="success rate",
         metric_is_binary=True,
@@ -96,28 +98,26 @@ TASKS = {
 
 
 def task_for(env_id: str) -> Task:
-    if env_id not in TASKS:
-        raise ValueError(f"no evaluation task for {env_id!r}; known: {', '.join(TASKS)}")
-    return TASKS[env_id]
+    return TASKS[family(env_id)]
 
 
-#: The env kwarg that sets an env's episode length, which its registered time limit must
-#: follow: ViewPlanning-v0's view budget, InstrumentGrasp-v0's horizon of the success bonus.
-EPISODE_LENGTH_KWARGS = {"ViewPlanning-v0": "view_budget", "InstrumentGrasp-v0": "episode_steps"}
+#: The env kwarg that sets a task's episode length: the v0 ids' registered time limits must
+#: follow it (the v1 ids end their own episodes).
+EPISODE_LENGTH_KWARGS = {"ViewPlanning": "view_budget", "InstrumentGrasp": "episode_steps"}
 
 
 def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
-    """``gym.make`` with the run's env kwargs. Each env's registered time limit is its default
-    episode length, so a changed ``view_budget`` (ViewPlanning-v0) or ``episode_steps``
-    (InstrumentGrasp-v0) moves the limit with it."""
+    """``gym.make`` with the run's env kwargs. Where an id registers a time limit (the v0
+    ids: their default episode lengths), a changed ``view_budget`` or ``episode_steps`` moves
+    the limit with it."""
     import gymnasium as gym
 
     import liuxing_envs  # noqa: F401  (registers the ids)
 
     env_kwargs = dict(env_kwargs or {})
     check_env_kwargs(env_id, env_kwargs)  # a name misspelt in a run's config.yml, say
-    length_kwarg = EPISODE_LENGTH_KWARGS.get(env_id)
-    if length_kwarg in env_kwargs:
+    length_kwarg = EPISODE_LENGTH_KWARGS[family(env_id)]
+    if BY_ID[env_id].max_episode_steps is not None and length_kwarg in env_kwargs:
         make_kwargs.setdefault("max_episode_steps", env_kwargs[length_kwarg])
     try:
         return gym.make(env_id, **make_kwargs, **env_kwargs)

@@ -132,6 +132,3 @@ class GraspRecorder:
             "time_to_lift": self.time_to_lift,
             "force_trace": self.forces,
         }
-
-
-RECORDERS = {"ViewPlanning-v0": ViewPlanningRecorder, "InstrumentGrasp-v0": GraspRecorder}

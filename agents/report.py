@@ -51,6 +51,7 @@ from agents.statistics import (
 from agents.training import SAVED_CONFIG_DEFAULTS
 from agents.video import record_videos
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
+from liuxing_envs.registration import family
 
 DEFAULT_EPISODES = 100
 DEFAULT_RECONSTRUCT_EPISODES = 20
@@ -84,7 +85,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         check_subfolders(out)
         earlier_files = earlier_report_files(out)  # read now: a stop leaves them all in place
         if settings.reconstruct_episodes and settings.save_episodes:
-            labels = [c.label for c in contestants if c.env_id == "ViewPlanning-v0"]
+            labels = [c.label for c in contestants if family(c.env_id) == "ViewPlanning"]
             check_reconstruction_folders(out, labels, earlier_files)
     except (OutputFolderError, ReportFolderError) as error:
         for env in envs.values():
@@ -190,7 +191,7 @@ def _open_envs(contestants: Sequence[Contestant]) -> dict:
 
 
 def _recorder(contestant: Contestant, settings: Settings, reconstructions: Path):
-    if contestant.env_id == "ViewPlanning-v0":
+    if family(contestant.env_id) == "ViewPlanning":
         return ViewPlanningRecorder(
             reconstruct_episodes=settings.reconstruct_episodes,
             save_dir=reconstructions / slug(contestant.label),
@@ -273,7 +274,7 @@ def _rate(flags) -> dict:
 def _summary(env_id: str, episodes: list[dict]) -> dict:
     task = task_for(env_id)
     summary = summarize(episodes, task.metric)
-    if env_id == "ViewPlanning-v0":
+    if family(env_id) == "ViewPlanning":
         summary.update(_view_planning_summary(episodes))
     else:
         summary.update(_grasp_summary(episodes))
@@ -333,7 +334,7 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
     task = task_for(env_id)
     scene_keys = (
         ("object", "scale", "position", "yaw")
-        if env_id == "ViewPlanning-v0"
+        if family(env_id) == "ViewPlanning"
         else ("instrument", "start_position", "start_yaw")
     )
     scenes = [
@@ -426,7 +427,7 @@ def _figures(report: dict, out: Path, settings: Settings) -> dict:
     figures: dict = {}
     for env_id, section in report["environments"].items():
         results = section["contestants"]
-        if env_id == "ViewPlanning-v0":
+        if family(env_id) == "ViewPlanning":
             figures["coverage_vs_views"] = _rel(
                 plotting.plot_coverage_curves(
                     out / COVERAGE_FIGURE,
@@ -637,7 +638,7 @@ def markdown(report: dict) -> str:
                 f"`{json.dumps(r['env_kwargs'])}`"
             )
         lines.append("")
-        if env_id == "ViewPlanning-v0":
+        if family(env_id) == "ViewPlanning":
             lines += _view_planning_tables(section)
         else:
             lines += _grasp_tables(section)

@@ -77,7 +77,7 @@ from liuxing_envs.validation import is_number
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}
 VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
-DEFAULT_ENV_ID = "ViewPlanning-v0"
+DEFAULT_ENV_ID = "ViewPlanning-v1"
 DEFAULT_ALGO = "ppo"
 DEFAULT_SEED = 0
 DEFAULT_VEC_ENV = "dummy"

@@ -12,6 +12,7 @@ import numpy as np
 
 from agents.contestants import slug
 from agents.evaluation import make_env, seed_sampling
+from liuxing_envs.registration import family
 
 #: ViewPlanning episodes are a handful of views: each is held on screen this long.
 VIEW_SECONDS = 1.0
@@ -21,7 +22,7 @@ VIDEOS_FOLDER = "videos"
 
 
 def _readout(env_id: str, info: dict, seconds: float) -> list[str]:
-    if env_id == "ViewPlanning-v0":
+    if family(env_id) == "ViewPlanning":
         lines = [f"view {info['views_used']}  coverage {info['coverage']:.3f}"]
         if info.get("refused"):
             lines.append("view refused")
@@ -56,7 +57,7 @@ def record_videos(
     for contestant in contestants:
         env = make_env(contestant.env_id, contestant.env_kwargs, render_mode="rgb_array")
         fps = env.metadata.get("render_fps", 20)
-        if contestant.env_id == "ViewPlanning-v0":
+        if family(contestant.env_id) == "ViewPlanning":
             repeat, dt = max(1, round(VIEW_SECONDS * fps)), 0.0
         else:
             repeat, dt = 1, env.unwrapped.dt

@@ -333,7 +333,7 @@ def targets(results: dict) -> list[tuple]:
         backend = view["mode"].split(",")[0]
         out.append(
             (
-                f"ViewPlanning-v0 default mode ({backend}), 64x64: "
+                f"ViewPlanning-v1 default mode ({backend}), 64x64: "
                 f">= {VIEW_TARGET:.0f} view-steps/s",
                 f"{view['median']:.0f}",
                 view["median"] >= VIEW_TARGET,
@@ -345,7 +345,7 @@ def targets(results: dict) -> list[tuple]:
         ratio = view["median"] / peer["rgb_84"]["median"]
         out.append(
             (
-                f"ViewPlanning-v0 ({backend}) / FetchPickAndPlace-v4 with 84x84 RGB: "
+                f"ViewPlanning-v1 ({backend}) / FetchPickAndPlace-v4 with 84x84 RGB: "
                 f">= {VIEW_PEER_RATIO:.0f}x",
                 f"{ratio:.2f}x",
                 ratio >= VIEW_PEER_RATIO,
@@ -355,7 +355,7 @@ def targets(results: dict) -> list[tuple]:
         ratio = grasp["median"] / peer["no_render"]["median"]
         out.append(
             (
-                "InstrumentGrasp-v0 state / FetchPickAndPlace-v4 without rendering: "
+                "InstrumentGrasp-v1 state / FetchPickAndPlace-v4 without rendering: "
                 f">= {GRASP_PEER_RATIO:.1f}x",
                 f"{ratio:.2f}x",
                 ratio >= GRASP_PEER_RATIO,
@@ -366,7 +366,7 @@ def targets(results: dict) -> list[tuple]:
         fraction = grasp["median"] / limit["limit"]
         out.append(
             (
-                f"InstrumentGrasp-v0 state: >= {GRASP_PHYSICS_FRACTION:.0%} of its physics limit",
+                f"InstrumentGrasp-v1 state: >= {GRASP_PHYSICS_FRACTION:.0%} of its physics limit",
                 f"{fraction:.0%}",
                 fraction >= GRASP_PHYSICS_FRACTION,
             )
@@ -603,7 +603,7 @@ def report(results: dict, command: str) -> str:
 
 
 def _time_to_beat(beat: dict) -> str:
-    run = f"The default `python train.py` (PPO, ViewPlanning-v0, {beat['total_steps']} steps, "
+    run = f"The default `python train.py` (PPO, ViewPlanning-v1, {beat['total_steps']} steps, "
     run += f"{beat['total_seconds']:.0f} s of learning)"
     objects = beat.get("objects", "train")  # reports before the field trained on these
     against = (

@@ -1,4 +1,4 @@
-"""How much of ViewPlanning-v0's observable surface an arm-bound camera can cover at all.
+"""How much of ViewPlanning-v1's observable surface an arm-bound camera can cover at all.
 
 Coverage counts the samples that some view of the env's view space sees, judged by ray
 casting from view positions around the object's middle, with no arm, field of view or pixel
@@ -47,19 +47,19 @@ def measure_episode(env, seed: int) -> dict:
     env.reset(seed=seed)
     placed, tracker, arm = env.placed, env.coverage, env.arm
     home = arm.qpos.copy()
-    radii, elevations = env._observation_views
+    radii, elevations = env.actions.observation_views
     # The views that decide the env's observable set, around its estimated centre.
     eyes = observation_viewpoints(radii, center=env.center, elevations_deg=elevations)
     reachable = np.zeros(len(eyes), dtype=bool)
     for k, eye in enumerate(eyes):
         arm.set_qpos(home)
-        plan = env._plan_view(eye)
+        plan = env.arm_motion.plan(arm, eye, env.center)
         if plan is None:
             continue
         reachable[k] = True
         arm.set_qpos(plan.waypoints[-1])
-        tracker.update(placed.to_object(env._preview_points()))
-    mesh = env._stage.meshes[placed.name]
+        tracker.update(placed.to_object(env.sensor.preview_points(env.scene)))
+    mesh = env.scene.stage.meshes[placed.name]
     samples = observable_samples(
         mesh, placed.scale, env.coverage_samples, radii=radii, elevations_deg=elevations
     )
@@ -85,7 +85,7 @@ def measure_episode(env, seed: int) -> dict:
 
 
 def measure(object_set: str, episodes: int, seed: int = DEFAULT_SEED) -> list[dict]:
-    env = gym.make("ViewPlanning-v0", object_set=object_set, depth_backend="raycast")
+    env = gym.make("ViewPlanning-v1", object_set=object_set, depth_backend="raycast")
     try:
         return [measure_episode(env.unwrapped, seed + k) for k in range(episodes)]
     finally:
@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(f"--seed must be >= 0, got {args.seed}")
     rows = measure(args.object_set, args.episodes, args.seed)
     print(
-        f"ViewPlanning-v0 ({args.object_set}, seeds {args.seed}-{args.seed + args.episodes - 1}, "
+        f"ViewPlanning-v1 ({args.object_set}, seeds {args.seed}-{args.seed + args.episodes - 1}, "
         f"continuous view space, {DEFAULT_OBSERVATION_AZIMUTH_COUNT} azimuths per ring)"
     )
     print(_summary(rows))

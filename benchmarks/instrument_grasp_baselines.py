@@ -1,4 +1,4 @@
-"""Acceptance run of the scripted grasping baselines on InstrumentGrasp-v0.
+"""Acceptance run of the scripted grasping baselines on InstrumentGrasp-v1.
 
 Run: ``MUJOCO_GL=egl python -m benchmarks.instrument_grasp_baselines [--episodes 50]``.
 Every baseline sees the same seeded episodes (instrument, pose) of the registered env with
@@ -26,7 +26,7 @@ from liuxing_envs.sim.instruments import INSTRUMENT_SETS  # noqa: E402
 
 
 def run(baseline: str, episodes: int, instrument_set: str) -> dict:
-    env = gym.make("InstrumentGrasp-v0", obs_mode="rgbd", instrument_set=instrument_set)
+    env = gym.make("InstrumentGrasp-v1", obs_mode="rgbd", instrument_set=instrument_set)
     policy = GRASP_BASELINES[baseline](env)
     outcomes = []
     start = time.perf_counter()
@@ -68,7 +68,7 @@ def main() -> None:
         parser.error(f"--episodes must be at least 1, got {args.episodes}")
     for instrument_set in args.sets:
         print(
-            f"\nInstrumentGrasp-v0, {instrument_set} instruments, obs_mode=rgbd, "
+            f"\nInstrumentGrasp-v1, {instrument_set} instruments, obs_mode=rgbd, "
             f"{args.episodes} episodes (seeds 0-{args.episodes - 1})\n"
         )
         print(

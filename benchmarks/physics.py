@@ -12,7 +12,7 @@ has its own model, and each episode is replayed in its instrument's. The benchma
 draw no random masses or frictions (``mass_range`` and ``friction_range`` are off by
 default); with them on, every episode of an instrument would be replayed with its last
 episode's values, which does not change what a substep costs.
-ViewPlanning-v0 steps physics only in ``motion="dynamic"``; in the default kinematic mode its
+ViewPlanning-v1 steps physics only in ``motion="dynamic"``; in the default kinematic mode its
 MuJoCo work is ray casting, kinematics and collision checks, shown by the time split.
 """
 

@@ -1,4 +1,4 @@
-"""How far from the scan a reconstruction may reach: metrics of ViewPlanning-v0 scans meshed
+"""How far from the scan a reconstruction may reach: metrics of ViewPlanning-v1 scans meshed
 with the support trim at several multiples of the cloud's point spacing.
 
 ``reconstruct`` removes mesh vertices farther than ``support_distance`` from every cleaned
@@ -35,7 +35,7 @@ def median_spacing(cloud_points: np.ndarray) -> float:
 
 def measure(object_set: str, episodes: int, spacings, seed: int = DEFAULT_SEED) -> dict:
     """Mean metrics per multiple of the spacing over ``episodes`` scans per baseline."""
-    env = gym.make("ViewPlanning-v0", object_set=object_set, action_mode="continuous")
+    env = gym.make("ViewPlanning-v1", object_set=object_set, action_mode="continuous")
     rows = {k: [] for k in (*spacings, "default")}
     spacing_mm = []
     for policy in (FourViewpointBaseline(env), GreedyOracle(env)):

@@ -7,7 +7,7 @@ with seeded random actions and the vector env's own autoreset. Every call of ``s
 counted as one env step per worker, so Gymnasium's vector env resets in the same call as
 the step that ends an episode (``AutoresetMode.SAME_STEP``): with its default,
 ``NEXT_STEP``, the call after the last step of an episode only resets, and counting it would
-overstate ViewPlanning-v0 (4-step episodes) by a quarter. SB3's ``SubprocVecEnv`` resets
+overstate ViewPlanning-v1 (4-step episodes) by a quarter. SB3's ``SubprocVecEnv`` resets
 in the same call already. On a machine with fewer cores
 than workers, the workers share the cores: the speed-up then measures overhead as much as
 parallelism. ``python -m benchmarks`` measures every vector env once per round, for several
@@ -19,7 +19,7 @@ worker. :func:`lockstep_ceilings` bounds what that alone allows, from one env's 
 times: with ``n`` workers on ``n`` free cores and no cost of communication at all, the
 speed-up is at most ``n * mean step time / mean time of the slowest of n steps``. Workers in
 lockstep start their episodes together, so where every episode has the same length (a
-ViewPlanning-v0 view budget) they stay in phase and the slowest is taken among steps of the
+ViewPlanning-v1 view budget) they stay in phase and the slowest is taken among steps of the
 same phase (the dearer first step after a reset falls on every worker at once); otherwise
 among all steps, as if independent, which makes the figure an estimate rather than a
 bound. The other cost is the vector env's own: :func:`vector_cost_ms` times its calls on
@@ -212,9 +212,7 @@ def vector_cost_ms(config: Config, calls: int, workers=(1, 2)) -> dict[str, dict
     real.reset(seed=0)
     observation, _, _, _, info = real.step(real.action_space.sample())
     spaces = (real.observation_space, real.action_space)
-    episode_steps = real.spec.max_episode_steps
-    if not episode_steps:
-        raise ValueError(f"{config.env_id} has no max_episode_steps for its twins' episodes")
+    episode_steps = real.unwrapped.episode_length
     twin = functools.partial(NoOpTwin, spaces, observation, info, episode_steps)
     real.close()
     cost: dict[str, dict[str, float]] = {}

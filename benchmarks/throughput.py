@@ -17,8 +17,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from benchmarks.isolated import random_action_throughput, run_in_fresh_process  # noqa: E402
 
-VIEW_PLANNING = "ViewPlanning-v0"
-GRASP = "InstrumentGrasp-v0"
+VIEW_PLANNING = "ViewPlanning-v1"
+GRASP = "InstrumentGrasp-v1"
 
 
 @dataclass(frozen=True)
@@ -55,9 +55,9 @@ def _grasp(obs_mode: str, backend: str, steps: int) -> Config:
     return Config(GRASP, {"obs_mode": obs_mode, "depth_backend": backend}, steps)
 
 
-#: The default mode of ViewPlanning-v0 is kinematic motion at 64x64; its backend "auto" picks
-#: gl where OpenGL works. VIEW_DEFAULT is the ray-cast backend, the faster one here. The
-#: embree backend (the ray-cast one with meshes cast by Embree) is measured beside them.
+#: The default mode of ViewPlanning-v1: kinematic motion at 64x64, ray-cast depth. The gl and
+#: embree backends (the latter the ray-cast one with meshes cast by Embree) are measured
+#: beside it.
 VIEW_DEFAULT = _view("raycast", "kinematic", 64)
 VIEW_DEFAULT_GL = _view("gl", "kinematic", 64)
 GRASP_STATE = _grasp("state", "gl", 2000)
@@ -99,7 +99,8 @@ def main() -> None:
     args = parser.parse_args()
     config = Config.from_json(args.one)
     env = make_env(config)
-    warmup = 2 * env.spec.max_episode_steps if env.spec.max_episode_steps < 50 else 100
+    length = env.unwrapped.episode_length
+    warmup = 2 * length if length < 50 else 100
     print(json.dumps(random_action_throughput(env, config.steps, args.repeats, warmup)))
 
 

@@ -48,15 +48,15 @@ class PhaseTimer:
 
 
 def _instrument_view_planning(env, timer: PhaseTimer) -> None:
-    import liuxing_envs.envs.view_planning as view_planning
     from liuxing_envs.perception.coverage import CoverageTracker
+    from liuxing_envs.sensors import view_sensor
 
     timer.wrap(env.arm, "solve_ik", "IK (closed form + collision checks)")
     timer.wrap(env.arm, "plan_path", "path collision checks")
     timer.wrap(env.arm, "follow", "motion (physics when dynamic)")
-    timer.wrap(env, "_render_depth", "depth rendering")
+    timer.wrap(env.scene, "render_depth", "depth rendering")
     timer.wrap(env.camera, "points_world", "back-projection")
-    timer.wrap(view_planning, "crop_points", "workspace crop")
+    timer.wrap(view_sensor, "crop_points", "workspace crop")
     timer.wrap(env.map, "fuse", "fusion (voxel map)")
     timer.wrap(CoverageTracker, "update", "coverage")
     timer.wrap(env, "_observation", "observation")

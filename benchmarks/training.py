@@ -1,5 +1,5 @@
 """Training throughput of ``train.py`` and the wall-clock time PPO needs to beat the
-four-view baseline on ViewPlanning-v0.
+four-view baseline on ViewPlanning-v1.
 
 Throughput: ``train.py`` with each algorithm's YAML for each env, run as a subprocess for a
 fixed number of steps with periodic evaluation and checkpoints off; env steps per second is
@@ -7,7 +7,7 @@ the run's ``timesteps / train_seconds`` from its ``result.json`` (learning only,
 SAC runs with ``learning_starts=0``, so every step pays for its gradient update as in the
 rest of a long run (the YAMLs' warm-ups of random steps would be a third of a short one).
 
-Time to beat: the default ``python train.py`` (PPO, ViewPlanning-v0) cut to
+Time to beat: the default ``python train.py`` (PPO, ViewPlanning-v1) cut to
 TIME_TO_BEAT_STEPS steps, whose periodic evaluation replays the same seeded episodes every
 ``eval_freq`` steps on its training objects. ``ppo.yml``'s learning rate decays to 0 over the
 run's length, so over the shorter run it falls faster than in the first steps of the 80k
@@ -38,10 +38,10 @@ EVAL_FREQ = 1000
 TIME_TO_BEAT_STEPS = 20_000
 #: (env id, algorithm, env steps): enough for a few policy updates past learning_starts.
 RUNS = (
-    ("ViewPlanning-v0", "ppo", 2048),
-    ("ViewPlanning-v0", "sac", 1200),
-    ("InstrumentGrasp-v0", "ppo", 8192),
-    ("InstrumentGrasp-v0", "sac", 7000),
+    ("ViewPlanning-v1", "ppo", 2048),
+    ("ViewPlanning-v1", "sac", 1200),
+    ("InstrumentGrasp-v1", "ppo", 8192),
+    ("InstrumentGrasp-v1", "sac", 7000),
 )
 
 

@@ -58,7 +58,7 @@ def main() -> None:
             f"{args.episodes} and {args.budget}"
         )
     print(
-        f"ViewPlanning-v0, {args.object_set} objects, {args.budget} views, discrete actions, "
+        f"ViewPlanning-v1, {args.object_set} objects, {args.budget} views, discrete actions, "
         f"{args.episodes} episodes (seeds 0-{args.episodes - 1}), default kwargs\n"
     )
     print("| baseline | final coverage | 95% CI | refused views / episode | wall s |")

@@ -25,15 +25,27 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-import yaml
 
 import liuxing_envs  # noqa: F401  (registers the ids)
 
 REPO = Path(__file__).resolve().parents[1]
-#: The env kwargs of the shipped grasp policy: the task its results are about.
-SHIPPED_GRASP_TASK = yaml.safe_load(
-    (REPO / "policies" / "InstrumentGrasp-v0" / "sac" / "config.yml").read_text()
-)["env_kwargs"]
+#: The env kwargs the shipped grasp policy was trained with on InstrumentGrasp-v0 (they are
+#: InstrumentGrasp-v1's defaults).
+SHIPPED_GRASP_TASK = {
+    "obs_mode": "state",
+    "reach_sharpness": 3.0,
+    "gripper_control": "force",
+    "max_grip_force": 3.0,
+    "arm_stiffness": 0.1,
+    "max_translation": 0.01,
+    "max_yaw": 0.1,
+    "servo_damping_ratio": 0.7,
+    "force_penalty": 2.0,
+    "failure_penalty": 50,
+    "approach_lead_limit": 0.00025,
+    "approach_lead_slope": 0.3,
+    "approach_guard_fingers": True,
+}
 STEPS = 300
 RESET_EVERY = 100
 VIEW = {"objects": ["box", "mug", "cylinder"], "scales": [1.0, 1.2], "coverage_samples": 2048}

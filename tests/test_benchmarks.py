@@ -61,23 +61,23 @@ def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
     assert results["unfinished"] == [] and "Incomplete" not in text
 
     splits = {(r["env_id"], r["mode"]): r for r in results["split"]}
-    view = splits[("ViewPlanning-v0", "raycast, kinematic, 64x64")]["phases"]
+    view = splits[("ViewPlanning-v1", "raycast, kinematic, 64x64")]["phases"]
     assert view["depth rendering"] > 0 and view["coverage"] > 0
-    grasp = splits[("InstrumentGrasp-v0", "state")]["phases"]
+    grasp = splits[("InstrumentGrasp-v1", "state")]["phases"]
     assert grasp["physics (mj_step)"] > 0 and "depth rendering" not in grasp
-    rgbd = splits[("InstrumentGrasp-v0", "rgbd, gl, 64x64")]["phases"]
+    rgbd = splits[("InstrumentGrasp-v1", "rgbd, gl, 64x64")]["phases"]
     assert rgbd["RGB rendering"] > 0
 
     limits = {r["env_id"]: r for r in results["physics"]}
     # Every InstrumentGrasp step is one control period of physics substeps (fewer only in the
     # rare step a protective stop cuts short, which adds a few).
     substeps = round(1.0 / (DEFAULT_CONTROL_HZ * DEFAULT_TIMESTEP))
-    assert limits["InstrumentGrasp-v0"]["mj_steps_per_env_step"] == pytest.approx(
+    assert limits["InstrumentGrasp-v1"]["mj_steps_per_env_step"] == pytest.approx(
         substeps, rel=0.05
     )
-    assert limits["InstrumentGrasp-v0"]["limit"] > 0
+    assert limits["InstrumentGrasp-v1"]["limit"] > 0
     # A dynamic view moves the arm under physics for hundreds of steps.
-    assert limits["ViewPlanning-v0"]["mj_steps_per_env_step"] > 50
+    assert limits["ViewPlanning-v1"]["mj_steps_per_env_step"] > 50
 
     # --update measures only the sections it names and keeps the others, saying so.
     run_script(
@@ -151,10 +151,10 @@ def test_short_soak_of_both_envs_passes_and_reports(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     runs = json.loads(out.with_suffix(".json").read_text())
     assert [(r["env_id"], "steps" in r) for r in runs] == [
-        ("ViewPlanning-v0", True),
-        ("ViewPlanning-v0", False),
-        ("InstrumentGrasp-v0", True),
-        ("InstrumentGrasp-v0", False),
+        ("ViewPlanning-v1", True),
+        ("ViewPlanning-v1", False),
+        ("InstrumentGrasp-v1", True),
+        ("InstrumentGrasp-v1", False),
     ]
     soaks = [r for r in runs if "steps" in r]
     assert all(r["steps"] == 400 and r["episodes"] > 1 and not r["non_finite_steps"] for r in soaks)
@@ -257,7 +257,7 @@ def test_vector_cost_is_measured_on_twins_that_step_like_the_env_without_its_wor
 
 def test_scaling_report_shows_the_lockstep_ceiling_where_each_worker_has_a_core():
     rate = {"median": 300.0, "min": 290.0, "max": 310.0, "speedup": 1.0}
-    single = {"env_id": "ViewPlanning-v0", "kind": "single", "workers": 1, **rate}
+    single = {"env_id": "ViewPlanning-v1", "kind": "single", "workers": 1, **rate}
     rows = [
         {
             **single,
@@ -265,16 +265,16 @@ def test_scaling_report_shows_the_lockstep_ceiling_where_each_worker_has_a_core(
             "vector_cost_ms": {"gymnasium-async": {"1": 0.25, "2": 0.5}},
         },
         *(
-            {**rate, "env_id": "ViewPlanning-v0", "kind": "gymnasium-async", "workers": n}
+            {**rate, "env_id": "ViewPlanning-v1", "kind": "gymnasium-async", "workers": n}
             for n in (2, 4)
         ),
     ]
     results = {"machine": dict(MACHINE), "quick": False, "scaling": rows}  # 2 cores
     text = bench_cli.report(results, "python -m benchmarks")
-    assert "| ViewPlanning-v0 | gymnasium-async | 2 | 300 | 290 | 310 | 1.00x | 1.71x |" in text
-    assert "| ViewPlanning-v0 | gymnasium-async | 4 | 300 | 290 | 310 | 1.00x | - |" in text
+    assert "| ViewPlanning-v1 | gymnasium-async | 2 | 300 | 290 | 310 | 1.00x | 1.71x |" in text
+    assert "| ViewPlanning-v1 | gymnasium-async | 4 | 300 | 290 | 310 | 1.00x | - |" in text
     # The vector env's own cost per call, and in steps of the single env (300 steps/s).
-    assert "| ViewPlanning-v0 | gymnasium-async | 2 | 0.500 | 0.15 |" in text
+    assert "| ViewPlanning-v1 | gymnasium-async | 2 | 0.500 | 0.15 |" in text
     (target,) = bench_cli.targets(results)
     assert target[1] == "1.00x (lockstep ceiling 1.71x)" and not target[2]
     # A report made before the ceiling was measured still renders.
@@ -395,7 +395,7 @@ def test_update_refuses_a_malformed_earlier_report_naming_it(tmp_path, cli):
         "machine": MACHINE,
         "quick": True,
         "command": "python -m benchmarks --quick",
-        "split": [{"env_id": "ViewPlanning-v0", "mode": "m", "ms_per_step": 1.0, "phases": {}}],
+        "split": [{"env_id": "ViewPlanning-v1", "mode": "m", "ms_per_step": 1.0, "phases": {}}],
     }
     not_json = "is not valid JSON"
     wrong_shape = "is not a benchmark report's JSON"
@@ -464,8 +464,8 @@ def test_report_saved_between_the_two_fetch_measurements_shows_the_first():
         "machine": dict(MACHINE),
         "quick": False,
         "throughput": [
-            {"env_id": "ViewPlanning-v0", "mode": VIEW_DEFAULT.label, **rate},
-            {"env_id": "InstrumentGrasp-v0", "mode": "state", **rate, "median": 3000.0},
+            {"env_id": "ViewPlanning-v1", "mode": VIEW_DEFAULT.label, **rate},
+            {"env_id": "InstrumentGrasp-v1", "mode": "state", **rate, "median": 3000.0},
         ],
         "peers": {"no_render": rate},
     }

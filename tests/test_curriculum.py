@@ -34,7 +34,7 @@ def tool_offsets(env, seeds):
 
 def test_starts_near_the_handle_as_often_and_as_close_as_configured():
     env = StartNearGrasp(
-        make_env("InstrumentGrasp-v0"),
+        make_env("InstrumentGrasp-v1"),
         probability=0.5,
         height=(0.02, 0.06),
         jitter=0.01,
@@ -50,7 +50,7 @@ def test_starts_near_the_handle_as_often_and_as_close_as_configured():
     np.testing.assert_allclose(far, READY_TCP, atol=2e-3)
     # Seeded: the same seeds give the same starts; an explicit start is left alone.
     np.testing.assert_array_equal(tool_offsets(env, range(40)), offsets)
-    always = StartNearGrasp(make_env("InstrumentGrasp-v0"), probability=1.0)
+    always = StartNearGrasp(make_env("InstrumentGrasp-v1"), probability=1.0)
     observation, _ = always.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.2]})
     offset = observation["proprio"][12:15] - observation["instrument"][:3]
     np.testing.assert_allclose(offset, [0.0, 0.0, 0.2], atol=2e-3)
@@ -60,7 +60,7 @@ def test_starts_near_the_handle_as_often_and_as_close_as_configured():
 
 
 def test_the_level_widens_the_starts_towards_the_env_limits():
-    env = StartNearGrasp(make_env("InstrumentGrasp-v0"), probability=1.0, height=(0.0, 0.0))
+    env = StartNearGrasp(make_env("InstrumentGrasp-v1"), probability=1.0, height=(0.0, 0.0))
     at_the_handle = tool_offsets(env, range(20))
     assert np.all(np.abs(at_the_handle[:, :2]) <= 0.005 + 2e-3)
     assert np.all(at_the_handle[:, 2] <= 5e-3)  # within millimetres once settled
@@ -74,7 +74,7 @@ def test_the_level_widens_the_starts_towards_the_env_limits():
 
 
 def test_the_last_step_of_an_episode_says_where_it_started():
-    env = StartNearGrasp(make_env("InstrumentGrasp-v0", max_episode_steps=3), probability=0.5)
+    env = StartNearGrasp(make_env("InstrumentGrasp-v1", max_episode_steps=3), probability=0.5)
     started = []
     for seed in range(6):
         observation, _ = env.reset(seed=seed)
@@ -101,7 +101,7 @@ def test_the_level_advances_when_enough_recent_starts_near_the_handle_succeed(tm
     from stable_baselines3.common.logger import Logger
 
     config = resolve_config(
-        env_id="InstrumentGrasp-v0",
+        env_id="InstrumentGrasp-v1",
         algo="sac",
         hyperparams={"start_curriculum": {"probability": 1.0}, "n_envs": 1},
     )
@@ -145,7 +145,7 @@ def test_the_start_level_is_saved_with_checkpoints_and_resumed(tmp_path):
     # Every episode starts near the handle and raises the level by 0.1.
     curriculum = "start_curriculum={probability: 1.0, advance_at: 0.0, window: 1, level_step: 0.1}"
     run_train(
-        *("--env", "InstrumentGrasp-v0", "--algo", "sac", "-n", "400", "--n-envs", "1"),
+        *("--env", "InstrumentGrasp-v1", "--algo", "sac", "-n", "400", "--n-envs", "1"),
         *("--run-dir", str(run_dir), "--eval-freq", "0", "--save-freq", "200"),
         *("--final-episodes", "0", "--no-progress-bar"),
         *("--hyperparams", "learning_starts=64", "batch_size=32", "demonstrations=null"),
@@ -178,7 +178,7 @@ def test_a_corrupt_start_level_is_named(tmp_path):
 
 def test_only_the_training_envs_start_near_the_handle(tmp_path):
     config = resolve_config(
-        env_id="InstrumentGrasp-v0",
+        env_id="InstrumentGrasp-v1",
         algo="ppo",
         hyperparams={"start_curriculum": {"probability": 1.0}, "n_envs": 1},
     )
@@ -198,18 +198,18 @@ def test_only_the_training_envs_start_near_the_handle(tmp_path):
 @pytest.mark.parametrize(
     ("env_id", "settings", "message"),
     [
-        ("ViewPlanning-v0", {"probability": 0.5}, "InstrumentGrasp-v0 only"),
-        ("InstrumentGrasp-v0", {"probablity": 0.5}, "unknown start_curriculum key"),
-        ("InstrumentGrasp-v0", {"probability": 1.5}, "probability must be a number in"),
-        ("InstrumentGrasp-v0", {"height": [0.05, 0.02]}, "low <= high"),
-        ("InstrumentGrasp-v0", {"height": 0.05}, "pair"),
-        ("InstrumentGrasp-v0", {"clearance": [0.02, 0.5]}, "clearance must be a number in"),
-        ("InstrumentGrasp-v0", {"yaw_jitter": 3}, "yaw_jitter"),
-        ("InstrumentGrasp-v0", [0.5], "mapping"),
-        ("InstrumentGrasp-v0", {"advance_at": 1.2}, "advance_at must be a number in"),
-        ("InstrumentGrasp-v0", {"window": 0}, "window must be a whole number"),
-        ("InstrumentGrasp-v0", {"window": 2.5}, "window must be a whole number"),
-        ("InstrumentGrasp-v0", {"level_step": 0}, "level_step must be a number in"),
+        ("ViewPlanning-v1", {"probability": 0.5}, "InstrumentGrasp tasks only"),
+        ("InstrumentGrasp-v1", {"probablity": 0.5}, "unknown start_curriculum key"),
+        ("InstrumentGrasp-v1", {"probability": 1.5}, "probability must be a number in"),
+        ("InstrumentGrasp-v1", {"height": [0.05, 0.02]}, "low <= high"),
+        ("InstrumentGrasp-v1", {"height": 0.05}, "pair"),
+        ("InstrumentGrasp-v1", {"clearance": [0.02, 0.5]}, "clearance must be a number in"),
+        ("InstrumentGrasp-v1", {"yaw_jitter": 3}, "yaw_jitter"),
+        ("InstrumentGrasp-v1", [0.5], "mapping"),
+        ("InstrumentGrasp-v1", {"advance_at": 1.2}, "advance_at must be a number in"),
+        ("InstrumentGrasp-v1", {"window": 0}, "window must be a whole number"),
+        ("InstrumentGrasp-v1", {"window": 2.5}, "window must be a whole number"),
+        ("InstrumentGrasp-v1", {"level_step": 0}, "level_step must be a number in"),
     ],
 )
 def test_bad_settings_name_the_problem(env_id, settings, message):

@@ -137,7 +137,7 @@ def test_a_damaged_entry_never_changes_what_an_env_measures(cache):
 
     def coverages():
         objects._observable_samples.cache_clear()
-        env = gym.make("ViewPlanning-v0", **kwargs)
+        env = gym.make("ViewPlanning-v1", **kwargs)
         try:
             return [env.reset(seed=seed)[1]["coverage"] for seed in range(3)]
         finally:

@@ -10,6 +10,7 @@ import json
 import math
 import re
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -28,23 +29,23 @@ from agents.statistics import (
 )
 from tests.scripts import REPO, run_script
 
-SHIPPED_VIEW_POLICY = REPO / "policies" / "ViewPlanning-v0" / "ppo"
+SHIPPED_VIEW_POLICY = REPO / "policies" / "ViewPlanning-v1" / "ppo"
 
 
 @pytest.fixture(scope="module")
 def grasp_run(tmp_path_factory) -> Path:
-    """A tiny SAC run on InstrumentGrasp-v0 (normalised observations, as its YAML asks)."""
+    """A tiny SAC run on InstrumentGrasp-v1 (normalised observations, as its YAML asks)."""
     run_dir = tmp_path_factory.mktemp("runs") / "grasp_sac"
     run_script(
         "train.py",
-        *("--env", "InstrumentGrasp-v0", "--algo", "sac", "-n", "256"),
+        *("--env", "InstrumentGrasp-v1", "--algo", "sac", "-n", "256"),
         *("--run-dir", str(run_dir), "--eval-freq", "128", "--save-freq", "128"),
         *("--eval-episodes", "1", "--final-episodes", "0", "--no-progress-bar"),
         *("--hyperparams", "learning_starts=64", "batch_size=32", "demonstrations=null"),
-        # The env's own gripper, arm and step sizes, not the YAML's: the baselines are scored
-        # with the run's env kwargs, and squeezing trips the hard limit only with these.
-        *("--env-kwargs", "gripper_control=opening", "arm_stiffness=1.0"),
-        *("max_translation=0.02", "max_yaw=0.2"),
+        # The opening-commanded gripper and the stiff arm: the baselines are scored with the
+        # run's env kwargs, and squeezing trips the hard limit only with these.
+        *("--env-kwargs", "gripper_control=opening", "approach_guard_fingers=false"),
+        *("arm_stiffness=1.0", "max_translation=0.02", "max_yaw=0.2"),
     )
     return run_dir
 
@@ -147,7 +148,7 @@ def test_view_planning_report_is_paired_and_its_numbers_are_sound(tmp_path):
     )
     assert "four-view" in result.stdout
     report = read_report(out)
-    section = report["environments"]["ViewPlanning-v0"]
+    section = report["environments"]["ViewPlanning-v1"]
     labels = [c["label"] for c in section["contestants"]]
     assert labels == ["ppo", "four-view", "uniform", "greedy-oracle"]
     assert section["paired"]
@@ -200,7 +201,7 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
         *("--instrument-set", "train", "--video", "--video-episodes", "1"),
     )
     report = read_report(out)
-    section = report["environments"]["InstrumentGrasp-v0"]
+    section = report["environments"]["InstrumentGrasp-v1"]
     assert section["paired"]
     by_label = {c["label"]: c for c in section["contestants"]}
     assert set(by_label) == {"grasp_sac", "scripted-grasp", "squeeze"}
@@ -249,7 +250,7 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         *("--baselines", "four-view", "--episodes", "2", "--reconstruct-episodes", "0"),
         *("--out", str(out)),
     )
-    section = read_report(out)["environments"]["ViewPlanning-v0"]
+    section = read_report(out)["environments"]["ViewPlanning-v1"]
     (aggregate,) = section["aggregates"]
     assert aggregate["group"] == "ppo" and len(aggregate["runs"]) == 2
     finals = [e["coverage"] for c in section["contestants"][:2] for e in c["episodes"]]
@@ -273,7 +274,7 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         *("evaluate.py", runs[0], str(twin), "--baselines", "none", "--episodes", "2"),
         *("--reconstruct-episodes", "0", "--out", str(again)),
     )
-    section = read_report(again)["environments"]["ViewPlanning-v0"]
+    section = read_report(again)["environments"]["ViewPlanning-v1"]
     assert section["aggregates"] == [] and "[2, 2]" in section["aggregate_notes"][0]
     assert "Not aggregated:" in (again / "report.md").read_text()
 
@@ -292,7 +293,7 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         *("evaluate.py", *runs, str(other), "--baselines", "none", "--episodes", "2"),
         *("--reconstruct-episodes", "0", "--out", str(mixed)),
     )
-    section = read_report(mixed)["environments"]["ViewPlanning-v0"]
+    section = read_report(mixed)["environments"]["ViewPlanning-v1"]
     assert [len(a["runs"]) for a in section["aggregates"]] == [2]
     (note,) = section["aggregate_notes"]
     assert "not aggregated with the other ppo runs, it ran with other env kwargs" in note
@@ -308,7 +309,7 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         *("evaluate.py", *runs, str(tuned), "--baselines", "none", "--episodes", "2"),
         *("--reconstruct-episodes", "0", "--out", str(swept)),
     )
-    section = read_report(swept)["environments"]["ViewPlanning-v0"]
+    section = read_report(swept)["environments"]["ViewPlanning-v1"]
     assert [a["runs"] for a in section["aggregates"]] == [[Path(r).name for r in runs]]
     (note,) = section["aggregate_notes"]
     assert "ppo_seed5: not aggregated with the other ppo runs, it ran with other training" in note
@@ -338,7 +339,7 @@ def test_yes_no_outcomes_get_a_mean_but_no_iqm_across_seeds():
     training = _training_settings({"env_kwargs": {"obs_mode": "state"}})
     pattern = [True, True, True, True, False] * 4  # 80%
     results = [grasp_seed_result(f"sac_seed{s}", s, pattern, training) for s in (0, 1, 2)]
-    (aggregate,) = _environment_section("InstrumentGrasp-v0", results)["aggregates"]
+    (aggregate,) = _environment_section("InstrumentGrasp-v1", results)["aggregates"]
     assert aggregate["mean"] == pytest.approx(0.8)
     assert aggregate["iqm"] is None and aggregate["iqm_ci95"] is None
     assert aggregate["iqm_seed_ci95"] is None
@@ -359,7 +360,7 @@ def test_runs_trained_in_other_env_kwargs_are_not_seeds_of_one_method():
         grasp_seed_result("sac_seed1", 1, pattern, procedural),
         grasp_seed_result("sac_seed2", 2, pattern, library),
     ]
-    section = _environment_section("InstrumentGrasp-v0", results)
+    section = _environment_section("InstrumentGrasp-v1", results)
     assert [a["runs"] for a in section["aggregates"]] == [["sac_seed0", "sac_seed1"]]
     (note,) = section["aggregate_notes"]
     assert note.startswith("sac_seed2: not aggregated") and "(env kwargs," in note
@@ -386,7 +387,7 @@ def test_no_probability_of_improvement_over_a_baseline_run_in_other_env_kwargs()
 
     results = [run("a0", 0, 4), run("a1", 1, 4), run("b0", 0, 6), run("b1", 1, 6)]
     results.append(run("four-view", None, 4, kind="baseline", group="four-view"))
-    section = _environment_section("ViewPlanning-v0", results)
+    section = _environment_section("ViewPlanning-v1", results)
     four, six = section["aggregates"]
     assert four["runs"] == ["a0", "a1"] and "probability_of_improvement" in four
     assert six["runs"] == ["b0", "b1"] and "probability_of_improvement" not in six
@@ -410,8 +411,8 @@ def test_grasp_episodes_pair_only_when_the_instrument_lay_in_the_same_pose():
             "episodes": [{**episode, "is_success": True}],
         }
 
-    assert _environment_section("InstrumentGrasp-v0", [run("a", 0.5), run("b", 0.5)])["paired"]
-    assert not _environment_section("InstrumentGrasp-v0", [run("a", 0.5), run("b", 0.51)])["paired"]
+    assert _environment_section("InstrumentGrasp-v1", [run("a", 0.5), run("b", 0.5)])["paired"]
+    assert not _environment_section("InstrumentGrasp-v1", [run("a", 0.5), run("b", 0.51)])["paired"]
 
 
 # --- bad input --------------------------------------------------------------------------------
@@ -430,51 +431,51 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--env", "ViewPlaning-v0", "four-view"], "did you mean 'ViewPlanning-v0'"),
-        (["--env", "ViewPlanning-v0", "four-veiw"], "did you mean 'four-view'"),
-        (["--env", "InstrumentGrasp-v0", "--baselines", "scripted"], "scripted-grasp"),
+        (["--env", "ViewPlaning-v1", "four-view"], "did you mean 'ViewPlanning-v1'"),
+        (["--env", "ViewPlanning-v1", "four-veiw"], "did you mean 'four-view'"),
+        (["--env", "InstrumentGrasp-v1", "--baselines", "scripted"], "scripted-grasp"),
         (
-            ["--env", "InstrumentGrasp-v0", "--baselines", "squeeze,random,squeeze"],
+            ["--env", "InstrumentGrasp-v1", "--baselines", "squeeze,random,squeeze"],
             "--baselines names squeeze more than once",
         ),
         (
-            ["--env", "InstrumentGrasp-v0", "squeeze", "squeeze"],
+            ["--env", "InstrumentGrasp-v1", "squeeze", "squeeze"],
             "'squeeze' is given more than once",
         ),
         (
-            ["--env", "ViewPlanning-v0", "four-view", "--baselines", "four-view"],
+            ["--env", "ViewPlanning-v1", "four-view", "--baselines", "four-view"],
             "four-view is given both as a contestant and in --baselines; give it once",
         ),
         (
-            ["policies/ViewPlanning-v0/ppo", "policies/ViewPlanning-v0/ppo/"],
-            "'policies/ViewPlanning-v0/ppo/' is given more than once",
+            ["policies/ViewPlanning-v1/ppo", "policies/ViewPlanning-v1/ppo/"],
+            "'policies/ViewPlanning-v1/ppo/' is given more than once",
         ),
         (["runs/no/such/run"], "does not exist"),
         # A run folder's name mistyped (no "/") reads as a baseline name: say both.
         (["ppo_sed0"], "'ppo_sed0': no such run folder or model file, and baseline names need"),
         (
-            ["--env", "ViewPlanning-v0", "ppo_sed0"],
+            ["--env", "ViewPlanning-v1", "ppo_sed0"],
             "'ppo_sed0' is neither a run folder or model file (none of that name exists) nor",
         ),
         ([], "nothing to evaluate"),
         (
-            ["--env", "ViewPlanning-v0", "--env-kwargs", "view_budgt=3"],
+            ["--env", "ViewPlanning-v1", "--env-kwargs", "view_budgt=3"],
             "did you mean 'view_budget'",
         ),
-        (["--env", "ViewPlanning-v0", "--episodes", "0"], "--episodes must be at least 1"),
-        (["--env", "ViewPlanning-v0", "--video-episodes", "3"], "add --video"),
+        (["--env", "ViewPlanning-v1", "--episodes", "0"], "--episodes must be at least 1"),
+        (["--env", "ViewPlanning-v1", "--video-episodes", "3"], "add --video"),
         (
-            ["--env", "InstrumentGrasp-v0", "squeeze", "--save-reconstructions", "2"],
-            "--save-reconstructions score ViewPlanning-v0 episodes by reconstruction; no",
+            ["--env", "InstrumentGrasp-v1", "squeeze", "--save-reconstructions", "2"],
+            "--save-reconstructions score ViewPlanning episodes by reconstruction; no",
         ),
         (
-            ["--env", "ViewPlanning-v0", "four-view", "--final-model"],
+            ["--env", "ViewPlanning-v1", "four-view", "--final-model"],
             "--final-model picks a run folder's final model; no source is a run folder",
         ),
         (
             [
                 "--env",
-                "ViewPlanning-v0",
+                "ViewPlanning-v1",
                 "--reconstruct-episodes",
                 "0",
                 "--save-reconstructions",
@@ -482,43 +483,43 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             ],
             "--reconstruct-episodes, which is 0 here",
         ),
-        (["--env", "ViewPlanning-v0", "--seed", "-1"], "--seed must be 0 or more"),
+        (["--env", "ViewPlanning-v1", "--seed", "-1"], "--seed must be 0 or more"),
         (
-            ["--env", "InstrumentGrasp-v0", "--seed", str(2**64), "--episodes", "1"],
+            ["--env", "InstrumentGrasp-v1", "--seed", str(2**64), "--episodes", "1"],
             "--seed must be at most 4294967295 with --episodes 1 (their seeds run to 1844674407",
         ),
         (
-            ["--env", "ViewPlanning-v0", "--seed", str(2**32 - 1), "--episodes", "2"],
+            ["--env", "ViewPlanning-v1", "--seed", str(2**32 - 1), "--episodes", "2"],
             "--seed must be at most 4294967294 with --episodes 2 (their seeds run to 4294967296,",
         ),
         (
-            ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "objects=[no/such.obj]"],
+            ["--env", "ViewPlanning-v1", "four-view", "--env-kwargs", "objects=[no/such.obj]"],
             "mesh file not found: no/such.obj",
         ),
         (
-            ["--env", "ViewPlanning-v0", "four-view", "--env-kwargs", "render_mode=human"],
+            ["--env", "ViewPlanning-v1", "four-view", "--env-kwargs", "render_mode=human"],
             "render_mode is evaluate.py's to set",
         ),
-        (["policies/ViewPlanning-v0/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
+        (["policies/ViewPlanning-v1/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
         (
-            ["policies/ViewPlanning-v0/ppo", "--raw-observations"],
+            ["policies/ViewPlanning-v1/ppo", "--raw-observations"],
             "--raw-observations is for a lone model file trained without normalisation",
         ),
         (
-            ["policies/ViewPlanning-v0/ppo/best_model.zip", "--raw-observations"],
+            ["policies/ViewPlanning-v1/ppo/best_model.zip", "--raw-observations"],
             "no source given is one (a run folder's config.yml",
         ),
         # The real mistake comes first: a mistyped run folder, no source at all.
         (["ppo_sed0", "--raw-observations"], "'ppo_sed0': no such run folder or model file"),
         (["--raw-observations"], "nothing to evaluate"),
-        (["--env", "ViewPlanning-v0", "--baselines", "none"], "leaves no contestant"),
+        (["--env", "ViewPlanning-v1", "--baselines", "none"], "leaves no contestant"),
         (
-            ["--env", "InstrumentGrasp-v0", "squeeze", "--object-set", "train"],
-            "--object-set chooses ViewPlanning-v0's episodes, but nothing here runs in",
+            ["--env", "InstrumentGrasp-v1", "squeeze", "--object-set", "train"],
+            "--object-set chooses ViewPlanning episodes, but nothing here runs a ViewPlanning task",
         ),
         (
-            ["policies/ViewPlanning-v0/ppo", "--env", "InstrumentGrasp-v0"],
-            "--env InstrumentGrasp-v0 is not the environment of the runs given (ViewPlanning-v0)",
+            ["policies/ViewPlanning-v1/ppo", "--env", "InstrumentGrasp-v1"],
+            "--env InstrumentGrasp-v1 is not the environment of the runs given (ViewPlanning-v1)",
         ),
     ],
 )
@@ -530,7 +531,7 @@ def test_bad_input_exits_with_a_message_naming_the_problem(args, message):
 def test_a_model_that_does_not_fit_its_env_fails_before_any_episode(tmp_path):
     out = tmp_path / "report"
     stderr = evaluate_fails(str(SHIPPED_VIEW_POLICY), "--env-kwargs", "view_budget=6", out=out)
-    assert "does not fit ViewPlanning-v0" in stderr and "view_history" in stderr
+    assert "does not fit ViewPlanning-v1" in stderr and "view_history" in stderr
     assert not out.exists()
 
 
@@ -543,7 +544,7 @@ def test_a_run_folder_given_as_dot_is_labelled_with_its_name(tmp_path, monkeypat
     monkeypatch.chdir(run_dir)
     (policy,) = build_contestants(["."], baselines=[])
     assert policy.label == "ppo_seed4"
-    (lone,) = build_contestants([run_folder.BEST_MODEL], env_id="ViewPlanning-v0", baselines=[])
+    (lone,) = build_contestants([run_folder.BEST_MODEL], env_id="ViewPlanning-v1", baselines=[])
     assert lone.label == "ppo_seed4/best_model"
 
 
@@ -559,7 +560,7 @@ def test_a_run_folder_whose_config_names_another_algorithm_fails_cleanly(tmp_pat
 def test_a_report_folder_that_is_a_file_fails_cleanly(tmp_path):
     taken = tmp_path / "report"
     taken.write_text("not a folder")
-    stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=taken)
+    stderr = evaluate_fails("--env", "ViewPlanning-v1", "four-view", out=taken)
     assert f"cannot write the report into '{taken}'" in stderr
     assert taken.read_text() == "not a folder"
 
@@ -568,7 +569,7 @@ def test_a_report_folder_that_is_a_file_fails_cleanly(tmp_path):
 def test_a_folder_where_the_report_writes_a_file_fails_before_any_episode(tmp_path, name):
     out = tmp_path / "report"
     (out / name).mkdir(parents=True)
-    stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=out)
+    stderr = evaluate_fails("--env", "ViewPlanning-v1", "four-view", out=out)
     assert f"{out / name} is not a file, and a file of that name is written there" in stderr
     assert sorted(p.name for p in out.iterdir()) == [name]
 
@@ -576,7 +577,7 @@ def test_a_folder_where_the_report_writes_a_file_fails_before_any_episode(tmp_pa
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
 def test_a_report_folder_that_cannot_take_files_fails_cleanly():
     # /proc refuses new files even to root, whom permission bits would not stop.
-    stderr = evaluate_fails("--env", "ViewPlanning-v0", "four-view", out=Path("/proc/self"))
+    stderr = evaluate_fails("--env", "ViewPlanning-v1", "four-view", out=Path("/proc/self"))
     assert "cannot write the report into '/proc/self': cannot write into the folder" in stderr
 
 
@@ -608,20 +609,20 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
     assert "pass --env" in evaluate_fails(str(lone))
     # The run normalised its observations: without the statistics beside it, the copy would
     # act on raw ones, so it is refused unless told it was trained without them.
-    refused = evaluate_fails(str(lone), "--env", "InstrumentGrasp-v0")
+    refused = evaluate_fails(str(lone), "--env", "InstrumentGrasp-v1")
     assert "vecnormalize.pkl" in refused and "--raw-observations" in refused
     shutil.copy(grasp_run / run_folder.FINAL_NORMALIZER, tmp_path / run_folder.FINAL_NORMALIZER)
     # With its normaliser beside it the flag would be ignored: refused, not silently dropped.
-    with_flag = evaluate_fails(str(lone), "--env", "InstrumentGrasp-v0", "--raw-observations")
+    with_flag = evaluate_fails(str(lone), "--env", "InstrumentGrasp-v1", "--raw-observations")
     assert "drop --raw-observations" in with_flag
     out = tmp_path / "report"
     in_run = grasp_run / run_folder.FINAL_MODEL
     run_script(
         "evaluate.py",
-        *(str(lone), str(in_run), "--env", "InstrumentGrasp-v0"),
+        *(str(lone), str(in_run), "--env", "InstrumentGrasp-v1"),
         *("--baselines", "none", "--episodes", "1", "--out", str(out)),
     )
-    contestants = read_report(out)["environments"]["InstrumentGrasp-v0"]["contestants"]
+    contestants = read_report(out)["environments"]["InstrumentGrasp-v1"]["contestants"]
     assert [(c["group"], c["kind"]) for c in contestants] == [("sac", "policy")] * 2
     # Inside its run folder the same file brings the run's config (and normaliser) with it.
     assert contestants[0]["training_seed"] is None and contestants[1]["training_seed"] == 0
@@ -631,7 +632,7 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
 
 
 @pytest.mark.parametrize(
-    "env_id, algo", [("ViewPlanning-v0", "ppo"), ("InstrumentGrasp-v0", "sac")]
+    "env_id, algo", [("ViewPlanning-v1", "ppo"), ("InstrumentGrasp-v1", "sac")]
 )
 def test_a_lone_shipped_policy_zip_names_its_own_algorithm(tmp_path, env_id, algo):
     from agents.contestants import ContestantError, policy_contestant
@@ -651,24 +652,24 @@ def test_a_normaliser_of_another_run_beside_a_model_is_refused_before_any_episod
 
     lone = tmp_path / "policy.zip"
     shutil.copy(SHIPPED_VIEW_POLICY / run_folder.BEST_MODEL, lone)
-    grasp_stats = REPO / "policies" / "InstrumentGrasp-v0" / "sac" / run_folder.BEST_NORMALIZER
+    grasp_stats = REPO / "policies" / "InstrumentGrasp-v1" / "sac" / run_folder.BEST_NORMALIZER
     shutil.copy(grasp_stats, tmp_path / run_folder.FINAL_NORMALIZER)
     with pytest.raises(ContestantError, match="normalises observations of {forces.*different runs"):
-        policy_contestant(lone, env_id="ViewPlanning-v0")
+        policy_contestant(lone, env_id="ViewPlanning-v1")
 
 
 def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the_split(tmp_path):
     from agents.contestants import ContestantError, build_contestants
 
     run = tmp_path / "ppo_listed"
-    shutil.copytree(REPO / "policies" / "ViewPlanning-v0" / "ppo", run)
+    shutil.copytree(REPO / "policies" / "ViewPlanning-v1" / "ppo", run)
     config = run / run_folder.CONFIG
     config.write_text(
         config.read_text().replace(
             "  object_set: procedural\n", "  objects: [box, bench]\n  object_set: train\n"
         )
     )
-    contestants = build_contestants([str(run)], splits={"ViewPlanning-v0": "held_out"})
+    contestants = build_contestants([str(run)], splits={"ViewPlanning": "held_out"})
     assert [c.label for c in contestants] == ["ppo_listed", "four-view", "greedy-oracle"]
     for contestant in contestants:
         assert "objects" not in contestant.env_kwargs
@@ -681,7 +682,7 @@ def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the
         build_contestants([str(run)], env_kwargs={"object_set": "train"})
     with pytest.raises(ContestantError, match="--object-set and --env-kwargs objects=... both"):
         build_contestants(
-            [str(run)], env_kwargs={"objects": ["arch"]}, splits={"ViewPlanning-v0": "train"}
+            [str(run)], env_kwargs={"objects": ["arch"]}, splits={"ViewPlanning": "train"}
         )
 
 
@@ -697,8 +698,8 @@ def test_the_split_flags_offer_exactly_the_envs_splits():
 @pytest.mark.parametrize(
     "env_id, scene_kwarg, trained_on, other_kwarg",
     [
-        ("ViewPlanning-v0", "objects", ["box", "bench"], ("view_budget", 3)),
-        ("InstrumentGrasp-v0", "instruments", ["scalpel"], ("force_limit", 4.0)),
+        ("ViewPlanning-v1", "objects", ["box", "bench"], ("view_budget", 3)),
+        ("InstrumentGrasp-v1", "instruments", ["scalpel"], ("force_limit", 4.0)),
     ],
 )
 def test_a_run_trained_on_a_list_of_items_is_compared_on_the_held_out_split(
@@ -742,9 +743,11 @@ def test_seeds_of_one_configuration_compare_equal_across_config_versions():
 def test_a_misspelt_env_kwarg_in_a_run_config_is_named_with_a_suggestion(tmp_path, capsys):
     """A hand-edited config.yml with ``obs_mod`` used to reach the env's bare TypeError."""
     run = tmp_path / "run"
-    shutil.copytree(REPO / "policies" / "InstrumentGrasp-v0" / "sac", run)
+    shutil.copytree(REPO / "policies" / "InstrumentGrasp-v1" / "sac", run)
     config = (run / "config.yml").read_text()
-    (run / "config.yml").write_text(config.replace("  obs_mode: state", "  obs_mod: state"))
+    (run / "config.yml").write_text(
+        config.replace("env_kwargs: {}", "env_kwargs:\n  obs_mod: state")
+    )
     import evaluate
 
     with pytest.raises(SystemExit) as exit_info:
@@ -752,30 +755,38 @@ def test_a_misspelt_env_kwarg_in_a_run_config_is_named_with_a_suggestion(tmp_pat
             [str(run), "--baselines", "none", "--episodes", "1", "--out", str(tmp_path / "out")]
         )
     assert exit_info.value.code == 2
-    assert "unknown env kwarg 'obs_mod' for InstrumentGrasp-v0 (did you mean 'obs_mode'?)" in (
+    assert "unknown env kwarg 'obs_mod' for InstrumentGrasp-v1 (did you mean 'obs_mode'?)" in (
         capsys.readouterr().err
     )
 
 
 @pytest.mark.parametrize(
-    "env_id, length_kwarg",
-    [("ViewPlanning-v0", "view_budget"), ("InstrumentGrasp-v0", "episode_steps")],
+    "env_id, length_kwarg, length",
+    [
+        ("ViewPlanning-v1", "view_budget", 8),
+        ("InstrumentGrasp-v1", "episode_steps", 3),
+        ("ViewPlanning-v0", "view_budget", 8),
+        ("InstrumentGrasp-v0", "episode_steps", 3),
+    ],
 )
-def test_the_time_limit_follows_the_episode_length_kwarg(env_id, length_kwarg):
-    """Training, periodic evaluation and evaluate.py all make their envs here: a registered
-    limit left at its default cut the episodes short of what the env's reward counts on."""
+def test_an_episode_runs_to_the_length_its_kwarg_sets(env_id, length_kwarg, length):
+    """Training, periodic evaluation and evaluate.py all make their envs here. The v1 ids end
+    their own episodes; a v0 id's registered limit, left at its default, cut the episodes
+    short of what the env's reward counts on, so it follows the kwarg."""
     from agents.evaluation import make_env
 
-    env = make_env(env_id, {length_kwarg: 3})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        env = make_env(env_id, {length_kwarg: length})
     try:
         env.reset(seed=0)
         env.action_space.seed(0)
         steps, done = 0, False
-        while not done and steps < 10:
+        while not done and steps < 20:
             _, _, terminated, truncated, _ = env.step(env.action_space.sample())
             steps, done = steps + 1, terminated or truncated
-        assert env.spec.max_episode_steps == 3
-        assert steps == 3
+        assert steps == length
+        assert env.spec.max_episode_steps == (length if env_id.endswith("-v0") else None)
     finally:
         env.close()
 
@@ -786,8 +797,8 @@ def test_sampled_actions_do_not_depend_on_what_ran_before_in_the_process():
     from agents.contestants import policy_contestant
     from agents.evaluation import make_env, run_episodes
 
-    contestant = policy_contestant(REPO / "policies" / "ViewPlanning-v0" / "ppo")
-    env = make_env("ViewPlanning-v0", {**contestant.env_kwargs, "object_set": "held_out"})
+    contestant = policy_contestant(REPO / "policies" / "ViewPlanning-v1" / "ppo")
+    env = make_env("ViewPlanning-v1", {**contestant.env_kwargs, "object_set": "held_out"})
     policy = contestant.make_policy(env)
     try:
         first = run_episodes(env, policy, [5, 6, 7], ["coverage"], deterministic=False)
@@ -832,7 +843,7 @@ def four_view_report(out: Path, seed: int) -> dict:
     from agents.contestants import build_contestants
     from agents.report import Settings, evaluate
 
-    contestants = build_contestants(["four-view"], env_id="ViewPlanning-v0", baselines=[])
+    contestants = build_contestants(["four-view"], env_id="ViewPlanning-v1", baselines=[])
     settings = Settings(episodes=1, seed=seed, reconstruct_episodes=1, save_episodes=1)
     return evaluate(contestants, settings, out)
 
@@ -885,7 +896,7 @@ def test_only_an_evaluate_report_json_marks_files_as_an_earlier_reports(tmp_path
     (tmp_path / "report.json").write_text("{not json")
     assert earlier_report_files(tmp_path) == []
     earlier = {
-        "environments": {"InstrumentGrasp-v0": {"contestants": [{"label": "sac"}]}},
+        "environments": {"InstrumentGrasp-v1": {"contestants": [{"label": "sac"}]}},
         "seeds": [0, 0],
         "settings": {},
         "figures": {"peak_forces": "peak_forces.png", "videos": ["../outside.mp4"]},
@@ -925,7 +936,7 @@ def test_a_report_stopped_after_its_numbers_leaves_no_earlier_report_md(tmp_path
     from agents import report
 
     out = tmp_path / "report"
-    argv = ["--env", "InstrumentGrasp-v0", "squeeze", "--baselines", "none", "--episodes", "1"]
+    argv = ["--env", "InstrumentGrasp-v1", "squeeze", "--baselines", "none", "--episodes", "1"]
     argv += ["--out", str(out), "--no-progress-bar"]
     assert evaluate.main(argv) == 0
 
@@ -948,7 +959,7 @@ def test_a_report_of_a_dirty_checkout_keeps_its_changes_and_a_clean_one_drops_th
     from agents.report import Settings, evaluate
 
     out = tmp_path / "report"
-    contestants = [baseline_contestant("random", "InstrumentGrasp-v0", {"episode_steps": 5})]
+    contestants = [baseline_contestant("random", "InstrumentGrasp-v1", {"episode_steps": 5})]
     settings = Settings(episodes=1, seed=7, command="evaluate.py random")
     monkeypatch.setattr(run_folder, "git_commit", lambda directory=None: "a" * 40 + "-dirty")
     monkeypatch.setattr(run_folder, "git_diff", lambda directory=None: b"diff --git a/x b/x\n")
@@ -962,3 +973,30 @@ def test_a_report_of_a_dirty_checkout_keeps_its_changes_and_a_clean_one_drops_th
     assert report["git_commit"] == "b" * 40 and "git_diff" not in report
     assert not (out / "git_diff.patch").exists()
     assert "with the changes" not in (out / "report.md").read_text()
+
+
+def test_a_v0_run_folder_still_evaluates_and_the_re_keyed_grasp_policy_scores_the_same(
+    tmp_path,
+):
+    """The shipped grasp policy was trained as InstrumentGrasp-v0 with the env kwargs that are
+    InstrumentGrasp-v1's defaults: its run folder as it was (v0 id, those kwargs) still
+    evaluates, with v0's deprecation warning, and gives the re-keyed folder's episodes."""
+    from tests.behaviour_digests import SHIPPED_GRASP_TASK
+
+    old = tmp_path / "old"
+    shutil.copytree(REPO / "policies" / "InstrumentGrasp-v1" / "sac", old)
+    config = yaml.safe_load((old / "config.yml").read_text())
+    config.update(env_id="InstrumentGrasp-v0", env_kwargs=SHIPPED_GRASP_TASK)
+    (old / "config.yml").write_text(yaml.safe_dump(config))
+    episodes = {}
+    for name, run in (("old", old), ("shipped", REPO / "policies" / "InstrumentGrasp-v1" / "sac")):
+        out = tmp_path / f"report_{name}"
+        result = run_script(
+            "evaluate.py", str(run), "--baselines", "none", "--episodes", "2", "--out", str(out),
+            env={"PYTHONWARNINGS": "always::DeprecationWarning"},
+        )  # fmt: skip
+        (section,) = read_report(out)["environments"].values()
+        episodes[name] = section["contestants"][0]["episodes"]
+        deprecated = "InstrumentGrasp-v0 is deprecated" in result.stderr
+        assert deprecated == (name == "old"), result.stderr[-2000:]
+    assert episodes["old"] == episodes["shipped"]

@@ -1,5 +1,7 @@
-"""InstrumentGrasp-v0: API conformance, reward bookkeeping, determinism, the scripted baselines
-against the force limit, bad input, and physics sanity under random actions."""
+"""InstrumentGrasp: API conformance, reward bookkeeping, determinism, the scripted baselines
+against the force limit, bad input, and physics sanity under random actions. These pin v0's
+behaviour (``InstrumentGraspV0Env``, v0's defaults), which v1 keeps under v1's settings; v1's
+own defaults and episode end are in ``tests/test_grasp_v1.py``."""
 
 import pickle
 
@@ -12,14 +14,10 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.grasp_baselines import Phase, PrivilegedGrasp, ScriptedGrasp, Squeeze, detect_handle
-from liuxing_envs.envs.instrument_grasp import (
-    DEFAULT_APPROACH_ALLOWANCE,
-    DEFAULT_FORCE_LIMIT,
-    FORCE_SAMPLE_SUBSTEPS,
-    GUARD_MIN_GAP,
-    GUARD_TOLERANCE,
-    InstrumentGraspEnv,
-)
+from liuxing_envs.envs.instrument_grasp import InstrumentGraspEnv, InstrumentGraspV0Env
+from liuxing_envs.envs.instrument_grasp_settings import V0, V1
+from liuxing_envs.safety.approach_guard import GUARD_MIN_GAP, GUARD_TOLERANCE
+from liuxing_envs.safety.force_monitor import FORCE_SAMPLE_SUBSTEPS
 from liuxing_envs.sim.grasp_world import (
     GRASP_FORCE_THRESHOLD,
     READY_OPENING,
@@ -28,6 +26,10 @@ from liuxing_envs.sim.grasp_world import (
 )
 from liuxing_envs.sim.gripper import MAX_OPENING
 from tests.scripts import outcomes_without_opengl
+
+pytestmark = pytest.mark.filterwarnings("ignore:InstrumentGrasp-v0 is deprecated")
+DEFAULT_FORCE_LIMIT = V0.safety.force_limit
+DEFAULT_APPROACH_ALLOWANCE = V0.task.approach_allowance
 
 REWARD_TERMS = (
     "reward_reach",
@@ -77,7 +79,7 @@ def test_make_vec_and_pickle_round_trip():
     assert rewards.shape == (2,) and np.all(np.isfinite(rewards))
     envs.close()
 
-    env = InstrumentGraspEnv(obs_mode="depth", resolution=32)
+    env = InstrumentGraspV0Env(obs_mode="depth", resolution=32)
     env.reset(seed=5)
     clone = pickle.loads(pickle.dumps(env))
     action = np.array([0.5, -0.3, -0.8, 0.2, 0.0], dtype=np.float32)
@@ -115,7 +117,7 @@ def test_reward_terms_sum_to_reward_and_seeds_repeat():
 
 @pytest.mark.parametrize("sharpness", [10.0, 3.0])
 def test_reach_term_follows_its_sharpness(sharpness):
-    env = InstrumentGraspEnv(reach_sharpness=sharpness)
+    env = InstrumentGraspV0Env(reach_sharpness=sharpness)
     observation, _ = env.reset(seed=4)
     observation, _, _, _, info = env.step(np.zeros(5, dtype=np.float32))
     distance = np.linalg.norm(observation["proprio"][12:15] - observation["instrument"][:3])
@@ -147,12 +149,12 @@ class MeasuredEpisode:
     env's reward code."""
 
     def __init__(self, monkeypatch, seed, options=None, **kwargs):
-        self.env = InstrumentGraspEnv(**kwargs)
+        self.env = InstrumentGraspV0Env(**kwargs)
         self.settings = {**REWARD_DEFAULTS, **kwargs}
         self.observation, _ = self.env.reset(seed=seed, options=options)
         self.start_height = self.env.world.grasp_point()[2]
         self.steps = []  # (peaks (left, right, impact), info, terminated) of each step
-        self._samples = []
+        self.samples = []
 
         # A spy, not a stand-in: MuJoCo's own step runs, then the sensors are read.
         def sampled_step(model, data, *args, **kw):
@@ -160,18 +162,18 @@ class MeasuredEpisode:
             world = self.env.world
             if data is world.data:
                 forces = world.gripper.fingertip_forces()
-                self._samples.append((data.time, *forces, world.impact_force()))
+                self.samples.append((data.time, *forces, world.impact_force()))
 
         monkeypatch.setattr(mujoco, "mj_step", sampled_step)
 
     def step(self, action):
         world, settings = self.env.world, self.settings
         start, timestep = world.data.time, world.model.opt.timestep
-        self._samples.clear()
+        self.samples.clear()
         self.observation, reward, terminated, truncated, info = self.env.step(action)
         samples = [
             values
-            for time, *values in self._samples
+            for time, *values in self.samples
             if round((time - start) / timestep) % FORCE_SAMPLE_SUBSTEPS == 0
         ]
         left, right, impact = peaks = np.max(samples, axis=0)
@@ -366,7 +368,7 @@ def test_success_needs_the_hold_time_and_terminate_on_success_pays_the_rest(step
 
 
 def test_a_protective_stop_counts_its_last_physics_steps_in_the_peaks():
-    env = InstrumentGraspEnv()
+    env = InstrumentGraspV0Env()
     expert = PrivilegedSqueeze(env)
     observation, _ = env.reset(seed=1)
     expert.reset()
@@ -380,7 +382,7 @@ def test_a_protective_stop_counts_its_last_physics_steps_in_the_peaks():
 
 
 def test_a_zero_hold_time_still_needs_a_grasp_at_height():
-    env = InstrumentGraspEnv(hold_time=0.0, terminate_on_success=True)
+    env = InstrumentGraspV0Env(hold_time=0.0, terminate_on_success=True)
     env.reset(seed=0)
     _, _, terminated, _, info = env.step(np.zeros(5, dtype=np.float32))
     assert not info["is_success"] and not terminated and info["reward_success"] == 0.0
@@ -390,7 +392,7 @@ def test_a_zero_hold_time_still_needs_a_grasp_at_height():
 def test_turning_one_way_never_swings_the_arm():
     # Wrist 3 meets its limit after about 30 steps at full yaw; the nearest IK solution is
     # then another arm configuration, which the env must refuse rather than swing to.
-    env = InstrumentGraspEnv()
+    env = InstrumentGraspV0Env()
     env.reset(seed=0)
     world = env.world
     for _ in range(40):
@@ -402,7 +404,7 @@ def test_turning_one_way_never_swings_the_arm():
 
 
 def test_an_image_env_can_be_reset_after_close():
-    env = InstrumentGraspEnv(obs_mode="depth", resolution=32)
+    env = InstrumentGraspV0Env(obs_mode="depth", resolution=32)
     first, _ = env.reset(seed=0)
     env.close()
     again, _ = env.reset(seed=0)
@@ -415,7 +417,7 @@ def arm_damping_ratios(env) -> np.ndarray:
     world = env.world
     model, data = world.model, world.data
     ratios = []
-    for actuator in world._arm_actuators:
+    for actuator in world.arm_actuators:
         dof = model.jnt_dofadr[model.actuator_trnid[actuator, 0]]
         unit, column = np.zeros(model.nv), np.zeros(model.nv)
         unit[dof] = 1.0
@@ -443,8 +445,8 @@ def tool_moves(env, direction, steps: int = 6, after: int = 4):
 
 def test_servo_damping_ratio_damps_each_arm_joint_alike_and_keeps_moves_nearer_their_axis():
     settings = {"instruments": ["scalpel"], "arm_stiffness": 0.1, "max_translation": 0.01}
-    model_damped = InstrumentGraspEnv(**settings)
-    evenly_damped = InstrumentGraspEnv(servo_damping_ratio=0.7, **settings)
+    model_damped = InstrumentGraspV0Env(**settings)
+    evenly_damped = InstrumentGraspV0Env(servo_damping_ratio=0.7, **settings)
     model_damped.reset(seed=0)
     evenly_damped.reset(seed=0)
     # In the ready pose the MJCF's dampratio (MuJoCo's, at qpos0) is far from even.
@@ -461,7 +463,7 @@ def test_servo_damping_ratio_damps_each_arm_joint_alike_and_keeps_moves_nearer_t
 
 
 def test_wrist_camera_pose_is_the_camera_s_for_given_joint_angles_and_names_bad_ones():
-    env = InstrumentGraspEnv()
+    env = InstrumentGraspV0Env()
     env.reset(seed=0)
     now = env.wrist_camera_pose()
     given = env.wrist_camera_pose(env.world.arm.qpos.tolist())
@@ -476,7 +478,7 @@ def test_wrist_camera_pose_is_the_camera_s_for_given_joint_angles_and_names_bad_
 
 
 def test_handle_detection_matches_the_grasp_point():
-    env = InstrumentGraspEnv(obs_mode="rgbd", resolution=128)
+    env = InstrumentGraspV0Env(obs_mode="rgbd", resolution=128)
     for seed in range(4):
         observation, _ = env.reset(seed=seed)
         position, rotation = env.wrist_camera_pose()
@@ -496,7 +498,9 @@ def test_handle_detection_matches_the_grasp_point():
 
 
 def test_random_actions_never_push_the_instrument_through_anything():
-    env = InstrumentGraspEnv(instrument_set="all", mass_range=(0.5, 2.0), friction_range=(0.7, 1.3))
+    env = InstrumentGraspV0Env(
+        instrument_set="all", mass_range=(0.5, 2.0), friction_range=(0.7, 1.3)
+    )
     rng = np.random.default_rng(0)
     env.reset(seed=0)
     deepest = 0.0
@@ -523,7 +527,7 @@ def test_random_actions_never_push_the_instrument_through_anything():
 
 
 def test_placements_lie_on_the_tray_and_options_are_checked():
-    env = InstrumentGraspEnv(instrument_set="all")
+    env = InstrumentGraspV0Env(instrument_set="all")
     for seed in range(30):
         env.reset(seed=seed)
         low, high = env.world.instrument.bounding_box[:, :2]
@@ -543,7 +547,7 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
     assert env.np_random.bit_generator.state == before  # refused before anything changed
     # A position the check accepts always resets, even where few yaws fit (a review found
     # seeds whose 100 random yaws all missed, refused after the generator was reseeded).
-    scalpel = InstrumentGraspEnv(instruments=["scalpel"])
+    scalpel = InstrumentGraspV0Env(instruments=["scalpel"])
     for seed in range(20):
         scalpel.reset(seed=seed, options={"position": (0.3985, -0.1365)})
         np.testing.assert_allclose(scalpel.world.grasp_point()[:2], (0.3985, -0.1365), atol=2e-3)
@@ -554,7 +558,7 @@ def test_placements_lie_on_the_tray_and_options_are_checked():
 
 
 def test_tool_start_puts_the_open_jaws_above_and_across_the_handle():
-    env = InstrumentGraspEnv(instrument_set="all")
+    env = InstrumentGraspV0Env(instrument_set="all")
     starts = [((0.0, 0.0, 0.02), 0.0), ((0.01, -0.01, 0.05), 0.4), ((-0.005, 0.0, 0.012), -0.3)]
     for seed, (offset, yaw_error) in enumerate(starts):
         observation, _ = env.reset(
@@ -576,7 +580,7 @@ def test_tool_start_puts_the_open_jaws_above_and_across_the_handle():
         assert observation["forces"].max() == 0.0  # nothing touched at the start
         assert proprio[17] == pytest.approx(READY_OPENING, abs=2e-3)
     # Jaws around the handle with 2 cm to spare: a 3 N grip holds it within a few steps.
-    gripper = InstrumentGraspEnv(instrument_set="all", gripper_control="force", max_grip_force=3)
+    gripper = InstrumentGraspV0Env(instrument_set="all", gripper_control="force", max_grip_force=3)
     for seed in range(3):
         observation, _ = gripper.reset(
             seed=seed, options={"tool_start": (0.0, 0.0, 0.0), "jaw_clearance": 0.02}
@@ -605,7 +609,7 @@ def test_a_tool_start_into_the_instrument_is_raised_until_the_gripper_touches_no
     # An offset off the handle can put a finger into another part of the instrument: tissue
     # forceps, seed 5, (-0.05, 0.05, 0) started with 208 N on a pad and hit the hard limit on
     # its first step; 20 of these 168 starts shoved the instrument or started in contact.
-    env = InstrumentGraspEnv(instrument_set="all")
+    env = InstrumentGraspV0Env(instrument_set="all")
     raised = 0
     for name in env.instrument_names:
         for seed in range(6):
@@ -633,16 +637,17 @@ def record_pad_leads(env):
     """A list that gets, at each step of ``env`` (unwrapped), the (gap, lead) in m of each pad
     near the instrument: its gap before the step, and how far the step's set-point leads it
     toward the instrument (a spy: the env's own arm step runs)."""
-    world, arm_step, steps = env.world, env._apply_arm_action, []
+    controller, steps = env.arm_controller, []
+    arm_step = controller.apply
 
-    def spy(arm_action):
+    def spy(world, arm_action, guard):
         near = world.approach_directions(env.approach_distance, min_gap=GUARD_MIN_GAP)
-        watched = arm_step(arm_action)
+        move = arm_step(world, arm_action, guard)
         leads = world.pad_leads(near, world.arm_ctrl())
         steps.append([(gap, lead) for (_, _, gap), lead in zip(near, leads, strict=True)])
-        return watched
+        return move
 
-    env._apply_arm_action = spy
+    controller.apply = spy
     return steps
 
 
@@ -819,16 +824,13 @@ def test_a_sloped_lead_limit_lets_a_pad_lead_more_the_further_it_is_and_land_gen
     assert max(abs(left[0] - right[0]) for left, right in both) > 0.0005
 
 
-#: The shipped grasp policy's arm and gripper (policies/InstrumentGrasp-v0/sac/config.yml).
+#: The shipped grasp policy's arm and gripper, and its braking guard (v1's defaults).
 SHIPPED_ARM = {
-    "gripper_control": "force",
-    "max_grip_force": 3.0,
-    "arm_stiffness": 0.1,
-    "max_translation": 0.01,
-    "max_yaw": 0.1,
-    "servo_damping_ratio": 0.7,
-}
-BRAKING_GUARD = {"approach_lead_limit": 0.00025, "approach_lead_slope": 0.3}
+    name: V1.flat()[name]
+    for name in ("gripper_control", "max_grip_force", "arm_stiffness", "max_translation",
+                 "max_yaw", "servo_damping_ratio")
+}  # fmt: skip
+BRAKING_GUARD = {name: V1.flat()[name] for name in ("approach_lead_limit", "approach_lead_slope")}
 
 
 def test_the_finger_guard_brakes_closing_fingers_by_the_same_ramp_and_they_still_grip():
@@ -881,7 +883,9 @@ def test_the_finger_guard_leaves_a_finger_what_the_arm_leaves_of_the_lead(monkey
     real_step, commands = mujoco.mj_step, []
 
     def spy(model, data, nstep=1):
-        if len(commands) < env._steps + 1:  # the step's first physics call: its commands set
+        if (
+            len(commands) < env.task.stats.steps + 1
+        ):  # the step's first physics call: its commands set
             near = world.approach_directions(env.approach_distance, GUARD_MIN_GAP)
             closing = gripper.closing_directions()
             leads = []
@@ -890,7 +894,8 @@ def test_the_finger_guard_leaves_a_finger_what_the_arm_leaves_of_the_lead(monkey
             ):
                 finger = gripper.finger_of(pad)
                 travel = (
-                    data.qpos[gripper._qpos_idx[finger]] - data.ctrl[gripper._actuators[finger]]
+                    data.qpos[gripper.finger_qpos[finger]]
+                    - data.ctrl[gripper.finger_actuators[finger]]
                 )
                 finger_lead = max(0.0, travel * float(closing[finger] @ toward))
                 leads.append((gap, arm_lead, arm_lead + finger_lead))
@@ -911,11 +916,11 @@ def test_the_finger_guard_takes_force_commands_up_to_the_speed_its_ramp_brakes_w
     pad; force-commanded fingers close max_grip_force / 40 N s/m / 20 Hz a step: 3.7 N (4.6 mm)
     is taken, 4 N (5 mm) refused."""
     guarded = {**BRAKING_GUARD, "approach_guard_fingers": True, "gripper_control": "force"}
-    env = InstrumentGraspEnv(**guarded, max_grip_force=3.7)
+    env = InstrumentGraspV0Env(**guarded, max_grip_force=3.7)
     assert env.approach_guard_fingers
     env.close()
     with pytest.raises(ValueError, match="5.00 mm a step: lower max_grip_force to at most 3.8 N"):
-        InstrumentGraspEnv(**guarded, max_grip_force=4.0)
+        InstrumentGraspV0Env(**guarded, max_grip_force=4.0)
 
 
 def test_the_finger_guard_shortens_the_servo_target_not_the_command_a_delta_gripper_adds_to():
@@ -1038,11 +1043,11 @@ def test_the_finger_guard_shortens_the_servo_target_not_the_command_a_delta_grip
 )
 def test_bad_kwargs_name_the_argument(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        InstrumentGraspEnv(**kwargs)
+        InstrumentGraspV0Env(**kwargs)
 
 
 def test_bad_actions_are_refused():
-    env = InstrumentGraspEnv()
+    env = InstrumentGraspV0Env()
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(5))
     env.reset(seed=0)
@@ -1060,7 +1065,7 @@ def test_bad_actions_are_refused():
 
 
 def test_joint_delta_moves_each_joint_by_the_action():
-    env = InstrumentGraspEnv(controller="joint_delta")
+    env = InstrumentGraspV0Env(controller="joint_delta")
     observation, _ = env.reset(seed=0)
     start = observation["proprio"][:6].copy()
     action = np.array([0.4, -0.4, 0.4, -0.4, 0.4, -0.4, 1.0], dtype=np.float32)
@@ -1073,7 +1078,7 @@ def test_joint_delta_moves_each_joint_by_the_action():
 
 
 def test_delta_gripper_control_moves_the_commanded_opening_by_the_action():
-    env = InstrumentGraspEnv(gripper_control="delta", max_gripper_delta=0.004)
+    env = InstrumentGraspV0Env(gripper_control="delta", max_gripper_delta=0.004)
     observation, _ = env.reset(seed=0)
     assert observation["proprio"][18] == pytest.approx(0.06)  # the ready opening
     for _ in range(3):
@@ -1104,7 +1109,7 @@ def test_force_gripper_control_squeezes_with_the_commanded_force():
         assert info["grasped"] and max(peaks) < force * overshoot
     env.close()
     # Closing on nothing stops at the closed position instead of pressing the pads together.
-    env = InstrumentGraspEnv(gripper_control="force")
+    env = InstrumentGraspV0Env(gripper_control="force")
     env.reset(seed=0)
     for _ in range(20):
         observation, *_ = env.step(np.array([0, 0, 0.5, 0, 1.0], dtype=np.float32))
@@ -1116,7 +1121,7 @@ def test_force_gripper_control_squeezes_with_the_commanded_force():
 
 
 def test_ee_delta_moves_the_tool_centre_and_holds_still_on_zero():
-    env = InstrumentGraspEnv()
+    env = InstrumentGraspV0Env()
     observation, _ = env.reset(seed=0)
     start = observation["proprio"][12:15].copy()
     for _ in range(5):
@@ -1138,14 +1143,14 @@ def test_depth_levels_round_trip_and_randomised_mass():
     np.testing.assert_allclose(decoded[0], [0.0, 0.1, 0.35], atol=0.001)
     assert decoded[1, 1] == pytest.approx(0.6)  # beyond the range saturates
 
-    env = InstrumentGraspEnv(mass_range=(2.0, 2.0), instruments=["scalpel"])
+    env = InstrumentGraspV0Env(mass_range=(2.0, 2.0), instruments=["scalpel"])
     env.reset(seed=0)
     assert mujoco.mj_getTotalmass(env.world.model) > 0
     assert env.world.model.body_mass[env.world.body] == pytest.approx(0.040)
 
 
 def test_render_shows_the_scene():
-    env = InstrumentGraspEnv(render_mode="rgb_array")
+    env = InstrumentGraspV0Env(render_mode="rgb_array")
     env.reset(seed=0)
     frame = env.render()
     assert frame.shape == (480, 640, 3) and frame.dtype == np.uint8
@@ -1165,14 +1170,14 @@ def test_render_fps_is_the_control_rate():
 
 _NO_GL_SCRIPT = """
 import json, warnings
-from liuxing_envs.envs.instrument_grasp import InstrumentGraspEnv
+from liuxing_envs.envs.instrument_grasp import InstrumentGraspV0Env
 outcomes = []
 for kwargs in ({"obs_mode": "rgbd"}, {"obs_mode": "depth", "depth_backend": "gl"},
                {"render_mode": "rgb_array"}, {"obs_mode": "depth"}, {"depth_backend": "gl"}):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the depth camera's fall-back to ray casting
-            env = InstrumentGraspEnv(instruments=["scalpel"], resolution=16, **kwargs)
+            env = InstrumentGraspV0Env(instruments=["scalpel"], resolution=16, **kwargs)
             observation, _ = env.reset(seed=0)
         outcomes.append(sorted(observation))
     except ValueError as error:
@@ -1198,7 +1203,7 @@ def test_settings_that_render_are_refused_when_made_without_opengl():
 
 def test_instrument_sleeps_at_rest_and_the_pads_wake_it():
     # Sleeping is what makes untouched steps cheap; it must never hide a touch or a grasp.
-    env = InstrumentGraspEnv(instruments=["scalpel"])
+    env = InstrumentGraspV0Env(instruments=["scalpel"])
     observation, _ = env.reset(seed=0, options={"position": [0.5, 0.0], "yaw": 0.0})
     world = env.world
     assert world.asleep() and world.impact_force() == 0.0
@@ -1233,7 +1238,7 @@ def test_grasped_counts_only_what_the_pads_press_on_the_instrument():
     # The touch sensors feel every contact on a pad. Pads barely touching the handle while
     # their fingertips press the tray floor read 8-15 N, but that is no grasp: reward_grasp
     # would pay for pressing the tray.
-    env = InstrumentGraspEnv(instruments=["scalpel"])
+    env = InstrumentGraspV0Env(instruments=["scalpel"])
     env.reset(seed=0, options={"tool_start": [0.0, 0.0, 0.02]})
     world = env.world
     width, yaw = world.instrument.grasp_width, jaws_across(world.grasp_axis())
@@ -1241,8 +1246,8 @@ def test_grasped_counts_only_what_the_pads_press_on_the_instrument():
 
     def place(into_floor, squeeze):
         tcp = np.array([grasp[0], grasp[1], world.tray.floor_z + 0.004 - into_floor])
-        world._place_tool(tcp, yaw, width + 0.0004, None)
-        world.data.qpos[world.gripper._qpos_idx] = (width - squeeze) / 2
+        world.place_tool(tcp, yaw, width + 0.0004, None)
+        world.data.qpos[world.gripper.finger_qpos] = (width - squeeze) / 2
         mujoco.mj_forward(world.model, world.data)
         return world.gripper.fingertip_forces(), world.gripper.pad_forces_on(world.body)
 
@@ -1268,7 +1273,7 @@ def test_grasped_counts_only_what_the_pads_press_on_the_instrument():
 def grip_then_lift(friction_range):
     """A 1 N grip around the scalpel's handle, then 15 steps up: the contact friction MuJoCo
     used during the grip, per partner geom, and the height lifted."""
-    env = InstrumentGraspEnv(
+    env = InstrumentGraspV0Env(
         instruments=["scalpel"],
         gripper_control="force",
         max_grip_force=1.0,
@@ -1312,10 +1317,10 @@ def test_a_friction_factor_of_one_changes_nothing():
     # Each reset multiplies the compiled coefficients afresh: after an episode at 0.1, a factor
     # of 1 (friction_range=None, or (1, 1)) leaves the scene exactly as compiled.
     def rollout(friction_range):
-        env = InstrumentGraspEnv(instruments=["scalpel"], friction_range=(0.1, 0.1))
+        env = InstrumentGraspV0Env(instruments=["scalpel"], friction_range=(0.1, 0.1))
         compiled = env.world.model.geom_friction.copy()
         env.reset(seed=3)
-        env.friction_range = friction_range
+        env.settings = env.settings.changed(friction_range=friction_range)  # the next episode's
         observation, _ = env.reset(seed=3)
         expert = PrivilegedGrasp(env)
         trace = []

@@ -13,7 +13,7 @@ from agents.plotting import plot_learning_curve, training_returns
 def _write_monitor(path, t_start: float, episodes: list[tuple[float, int, float]]) -> None:
     """A Monitor file as SB3's Monitor writes it: a JSON header with the file's start time, a
     CSV header, then one row per episode of (return, length, seconds since the start)."""
-    header = json.dumps({"t_start": t_start, "env_id": "InstrumentGrasp-v0"})
+    header = json.dumps({"t_start": t_start, "env_id": "InstrumentGrasp-v1"})
     rows = "".join(f"{r},{length},{t}\n" for r, length, t in episodes)
     path.write_text(f"#{header}\nr,l,t\n{rows}")
 

@@ -30,7 +30,7 @@ def play(env, policy, seed):
 def test_a_scripted_grasp_starts_each_episode_afresh_in_a_plain_loop():
     # It used to carry its phase into the next episode: after a lift it began the next one
     # lifting, and failed it.
-    env = gym.make("InstrumentGrasp-v0", terminate_on_success=True)
+    env = gym.make("InstrumentGrasp-v1", terminate_on_success=True)
     policy = PrivilegedGrasp(env)
     first, info = play(env, policy, seed=1)
     assert info["is_success"]
@@ -42,7 +42,7 @@ def test_a_scripted_grasp_starts_each_episode_afresh_in_a_plain_loop():
 
 @pytest.mark.parametrize("action_mode", ["continuous", "discrete"])
 def test_view_baselines_take_a_batch_of_one_as_sb3_does(action_mode):
-    env = gym.make("ViewPlanning-v0", action_mode=action_mode, object_set="held_out")
+    env = gym.make("ViewPlanning-v1", action_mode=action_mode, object_set="held_out")
     for make in (FourViewpointBaseline, GreedyOracle):
         policy = make(env)
         observation, _ = env.reset(seed=3)
@@ -61,7 +61,7 @@ def test_view_baselines_take_a_batch_of_one_as_sb3_does(action_mode):
 
 
 def test_a_batch_of_several_envs_is_refused_by_name():
-    env = gym.make("ViewPlanning-v0")
+    env = gym.make("ViewPlanning-v1")
     observation, _ = env.reset(seed=0)
     batch = {key: np.stack([value, value]) for key, value in observation.items()}
     with pytest.raises(ValueError, match="one observation or a batch of one, not a batch of 2"):
@@ -69,7 +69,7 @@ def test_a_batch_of_several_envs_is_refused_by_name():
 
 
 @pytest.mark.parametrize(
-    ("env_id", "make"), [("ViewPlanning-v0", RandomViews), ("InstrumentGrasp-v0", RandomGrasp)]
+    ("env_id", "make"), [("ViewPlanning-v1", RandomViews), ("InstrumentGrasp-v1", RandomGrasp)]
 )
 def test_random_baselines_play_an_episode_by_its_seed_alone(env_id, make):
     env = gym.make(env_id)
@@ -84,7 +84,7 @@ def test_random_baselines_play_an_episode_by_its_seed_alone(env_id, make):
 
 
 @pytest.mark.parametrize(
-    ("env_id", "make"), [("ViewPlanning-v0", RandomViews), ("InstrumentGrasp-v0", RandomGrasp)]
+    ("env_id", "make"), [("ViewPlanning-v1", RandomViews), ("InstrumentGrasp-v1", RandomGrasp)]
 )
 def test_random_baselines_do_not_replay_the_env_s_own_draws(env_id, make):
     # Gymnasium seeds an env and a space alike: a policy seeded with the episode's seed drew
@@ -105,8 +105,8 @@ def test_a_scripted_grasp_built_on_one_env_acts_in_another_when_reset():
     # stepped in never moves: it restarted before every action and never grasped.
     kwargs = {"obs_mode": "rgbd", "terminate_on_success": True}
     built_on, played_in = (
-        gym.make("InstrumentGrasp-v0", **kwargs),
-        gym.make("InstrumentGrasp-v0", **kwargs),
+        gym.make("InstrumentGrasp-v1", **kwargs),
+        gym.make("InstrumentGrasp-v1", **kwargs),
     )
     policy = ScriptedGrasp(built_on)
     policy.reset()

@@ -37,13 +37,13 @@ QUICK = ["--eval-episodes", "2", "--final-episodes", "2", "--no-progress-bar"]
 #: to build the envs for): these runs test the harness, not what the policy learns from.
 TRAIN_OBJECTS = "object_set=train"
 QUICK_HYPERPARAMS = {
-    ("ViewPlanning-v0", "ppo"): [
+    ("ViewPlanning-v1", "ppo"): [
         *("n_steps=32", "batch_size=32", "n_epochs=2", f"env_kwargs.{TRAIN_OBJECTS}"),
     ],
-    ("ViewPlanning-v0", "sac"): ["buffer_size=2000", "learning_starts=32", "batch_size=16"],
-    ("InstrumentGrasp-v0", "ppo"): ["n_steps=64", "batch_size=64", "n_epochs=2"],
+    ("ViewPlanning-v1", "sac"): ["buffer_size=2000", "learning_starts=32", "batch_size=16"],
+    ("InstrumentGrasp-v1", "ppo"): ["n_steps=64", "batch_size=64", "n_epochs=2"],
     # Without the YAML's 50 expert episodes and 5,000 cloning steps (minutes).
-    ("InstrumentGrasp-v0", "sac"): ["learning_starts=64", "batch_size=32", "demonstrations=null"],
+    ("InstrumentGrasp-v1", "sac"): ["learning_starts=64", "batch_size=32", "demonstrations=null"],
 }
 
 
@@ -128,10 +128,10 @@ def test_named_optimizers_and_automatic_entropy_settings_are_taken():
 
 
 def test_the_default_run_is_the_one_the_readme_describes():
-    """`python train.py` with no flags (the README's main job): PPO on ViewPlanning-v0 for
+    """`python train.py` with no flags (the README's main job): PPO on ViewPlanning-v1 for
     80,000 steps on the procedural training shapes, then 50 held-out comparison episodes."""
     config = training.resolve_config()
-    assert (config["env_id"], config["algo"], config["seed"]) == ("ViewPlanning-v0", "ppo", 0)
+    assert (config["env_id"], config["algo"], config["seed"]) == ("ViewPlanning-v1", "ppo", 0)
     assert (config["n_timesteps"], config["final_episodes"]) == (80_000, 50)
     assert config["env_kwargs"]["object_set"] == "procedural"
     assert config["vec_env"] == "dummy"  # its envs stepped in one process (README: Speed)
@@ -161,7 +161,7 @@ def test_a_python_expression_stays_a_string():
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--env", "ViewPlaning-v0"], "did you mean 'ViewPlanning-v0'"),
+        (["--env", "ViewPlaning-v1"], "did you mean 'ViewPlanning-v1'"),
         (["--algo", "ppp"], "did you mean 'ppo'"),
         (["--algo", "dqn"], "allowed: ppo, sac"),
         (["--hyperparams", "learning_rat=1e-3"], "did you mean 'learning_rate'"),
@@ -212,7 +212,7 @@ def test_a_python_expression_stays_a_string():
         (["--algo", "sac", "--hyperparams", "train_freq=[1, step, 3]"], "got [1, 'step', 3]"),
         (["--algo", "sac", "--hyperparams", "train_freq=[1, steps]"], "(did you mean 'step'?)"),
         (["--seed", "5000000000"], "seed must be an integer in [0, 4294967295], got 5000000000"),
-        (["--hyperparams", "env_kwargs={5: 1}"], "unknown env kwarg 5 for ViewPlanning-v0"),
+        (["--hyperparams", "env_kwargs={5: 1}"], "unknown env kwarg 5 for ViewPlanning-v1"),
         (
             ["--hyperparams", "env_kwargs.view_budget=6", "--env-kwargs", "view_budget=5"],
             "env kwargs ['view_budget'] are given both in --hyperparams env_kwargs and in",
@@ -286,7 +286,7 @@ def test_a_python_expression_stays_a_string():
         (
             [
                 "--env",
-                "InstrumentGrasp-v0",
+                "InstrumentGrasp-v1",
                 "--algo",
                 "sac",
                 "--hyperparams",
@@ -321,7 +321,7 @@ def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
         train.main(argv)
     assert exit_info.value.code == 2
     error = capsys.readouterr().err
-    assert "train.py: error: ViewPlanning-v0 with env kwargs" in error
+    assert "train.py: error: ViewPlanning-v1 with env kwargs" in error
     assert reason in error
     assert not run_dir.exists()
 
@@ -350,7 +350,7 @@ def test_a_refused_start_in_an_existing_folder_removes_what_it_wrote(tmp_path, c
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     (run_dir / "notes.txt").write_text("the user's")
-    argv = ["--env", "InstrumentGrasp-v0", "--algo", "ppo", "--run-dir", str(run_dir)]
+    argv = ["--env", "InstrumentGrasp-v1", "--algo", "ppo", "--run-dir", str(run_dir)]
     with pytest.raises(SystemExit) as exit_info:
         train.main([*argv, "--env-kwargs", "max_grip_force=-5"])
     assert exit_info.value.code == 2 and "max_grip_force" in capsys.readouterr().err
@@ -377,7 +377,7 @@ def test_a_run_folder_another_process_trains_in_is_refused(how, tmp_path, capsys
     argv = ["--run-dir", str(run_dir)]
     if how == "resume":
         argv = ["--resume", str(run_dir)]
-        (run_dir / run_folder.CONFIG).write_text("env_id: ViewPlanning-v0\n")
+        (run_dir / run_folder.CONFIG).write_text("env_id: ViewPlanning-v1\n")
     held = {path.name for path in run_dir.iterdir()} | {run_folder.LOCK}
     with run_folder.exclusive(run_dir):  # as a training process holds it
         with pytest.raises(SystemExit) as exit_info:
@@ -441,13 +441,13 @@ def test_a_config_file_that_is_not_a_yaml_mapping_of_names_is_refused(
 
 def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
     config = tmp_path / "ppo.yml"
-    config.write_text(yaml.safe_dump({"InstrumentGrasp-v0": {"n_timesteps": 10}}))
+    config.write_text(yaml.safe_dump({"InstrumentGrasp-v1": {"n_timesteps": 10}}))
     with pytest.raises(SystemExit):
         train.main(["--config", str(config)])
     assert (
-        "has no entry for 'ViewPlanning-v0'; it has: InstrumentGrasp-v0" in capsys.readouterr().err
+        "has no entry for 'ViewPlanning-v1'; it has: InstrumentGrasp-v1" in capsys.readouterr().err
     )
-    config.write_text(yaml.safe_dump({"ViewPlaning-v0": {}, "InstrumentGrasp-v0": {}}))
+    config.write_text(yaml.safe_dump({"ViewPlaning-v0": {}, "InstrumentGrasp-v1": {}}))
     with pytest.raises(SystemExit):
         train.main(["--config", str(config)])
     assert "(did you mean 'ViewPlaning-v0'?); it has: " in capsys.readouterr().err
@@ -479,7 +479,7 @@ def test_the_periodic_evaluation_split_replaces_an_explicit_training_list():
     # The env takes an explicit list over any split: best_model.zip was chosen on the
     # training objects while the config said validation.
     config = {
-        "env_id": "ViewPlanning-v0",
+        "env_id": "ViewPlanning-v1",
         "env_kwargs": {"objects": ["box", "cylinder"], "view_budget": 3},
         "eval_env_kwargs": {"object_set": "validation"},
     }
@@ -507,7 +507,7 @@ def test_a_resumed_run_draws_no_periodic_evaluation_seed():
 def test_a_normalised_run_without_its_normaliser_is_refused(tmp_path):
     # load_policy (train.py's final comparison) took it on raw observations, silently.
     run = tmp_path / "sac"
-    shutil.copytree(REPO / "policies" / "InstrumentGrasp-v0" / "sac", run)
+    shutil.copytree(REPO / "policies" / "InstrumentGrasp-v1" / "sac", run)
     (run / run_folder.BEST_NORMALIZER).unlink()
     with pytest.raises(run_folder.RunFolderError, match="best_vecnormalize.pkl is missing"):
         load_policy(run)
@@ -517,11 +517,11 @@ def test_a_normalised_run_without_its_normaliser_is_refused(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("env_id", ["ViewPlanning-v0", "InstrumentGrasp-v0"])
+@pytest.mark.parametrize("env_id", ["ViewPlanning-v1", "InstrumentGrasp-v1"])
 @pytest.mark.parametrize("algo", ["ppo", "sac"])
 def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
     run_dir = tmp_path / "run"
-    steps = 256 if env_id == "ViewPlanning-v0" else 512
+    steps = 256 if env_id == "ViewPlanning-v1" else 512
     temp_dir = tmp_path / "tmp"
     temp_dir.mkdir()
     result = run_train(*quick_args(env_id, algo, run_dir, steps), env={"TMPDIR": str(temp_dir)})
@@ -540,10 +540,10 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
     comparison = json.loads((run_dir / run_folder.RESULT).read_text())["comparison"]
     assert comparison["policy"]["episodes"] == comparison["baseline"]["episodes"] == 2
     assert 0.0 <= comparison["policy"]["mean"] <= 1.0
-    # On the held-out split, and for ViewPlanning-v0 with the oracle beside them for scale.
-    split = "object_set" if env_id == "ViewPlanning-v0" else "instrument_set"
+    # On the held-out split, and for ViewPlanning-v1 with the oracle beside them for scale.
+    split = "object_set" if env_id == "ViewPlanning-v1" else "instrument_set"
     assert comparison["split"] == {split: "held_out"}
-    if env_id == "ViewPlanning-v0":
+    if env_id == "ViewPlanning-v1":
         assert comparison["reference"]["name"] == "greedy-oracle"
         assert comparison["reference"]["episodes"] == 2
     else:
@@ -574,7 +574,7 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
 def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_path):
     run_dir = tmp_path / "run"
     demonstrations = "demonstrations={expert: privileged-grasp, episodes: 1, pretrain_steps: 20}"
-    args = quick_args("InstrumentGrasp-v0", "sac", run_dir, 128, 1, [demonstrations])
+    args = quick_args("InstrumentGrasp-v1", "sac", run_dir, 128, 1, [demonstrations])
     # At the env's own step sizes, where the scripted grasp finishes well inside the time
     # limit (at the YAML's 1 cm per step it often runs out of time).
     temp_dir = tmp_path / "tmp"
@@ -604,7 +604,7 @@ def test_overrides_reach_the_model_and_the_env(tmp_path):
 
     run_dir = tmp_path / "run"
     run_train(
-        *quick_args("ViewPlanning-v0", "ppo", run_dir, 128),
+        *quick_args("ViewPlanning-v1", "ppo", run_dir, 128),
         *("learning_rate=1e-3", "policy_kwargs.net_arch=[32]"),
         *("--env-kwargs", "view_budget=3", "--seed", "7", "--final-episodes", "0"),
     )
@@ -628,7 +628,7 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
     from stable_baselines3 import SAC
 
     run_dir = tmp_path / "run"
-    args = quick_args("ViewPlanning-v0", "sac", run_dir, 128, n_envs=1)
+    args = quick_args("ViewPlanning-v1", "sac", run_dir, 128, n_envs=1)
     run_train(*args, "--final-episodes", "0")
     first = SAC.load(run_folder.checkpoint_paths(run_dir, 128)["model"])
     assert first.num_timesteps == 128
@@ -659,7 +659,7 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
 @pytest.mark.slow
 def test_a_linear_learning_rate_decays_to_zero_over_the_run_and_its_resumption(tmp_path):
     run_dir = tmp_path / "run"
-    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 192)
+    args = quick_args("ViewPlanning-v1", "ppo", run_dir, 192)
     run_train(*args, "learning_rate=lin_1e-3", "clip_range=lin_0.2", "--final-episodes", "0")
     config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
     assert config["hyperparams"]["learning_rate"] == "lin_1e-3"  # as given, to reproduce
@@ -697,9 +697,9 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
     from stable_baselines3 import SAC
 
     source, tuned = tmp_path / "source", tmp_path / "tuned"
-    run_train(*quick_args("InstrumentGrasp-v0", "sac", source, 128, n_envs=1))
+    run_train(*quick_args("InstrumentGrasp-v1", "sac", source, 128, n_envs=1))
     # 32 steps before learning starts: the new run's weights are still the loaded ones.
-    args = quick_args("InstrumentGrasp-v0", "sac", tuned, 32, n_envs=1)
+    args = quick_args("InstrumentGrasp-v1", "sac", tuned, 32, n_envs=1)
     run_train(*args, "--init-from", str(source), "--final-episodes", "0")
 
     trained = SAC.load(source / run_folder.BEST_MODEL)
@@ -720,7 +720,7 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
     assert "replay_buffer" not in recorded
 
     # With --init-replay-buffer it also keeps the trained run's newest replay buffer.
-    args = quick_args("InstrumentGrasp-v0", "sac", tmp_path / "kept", 32, n_envs=1)
+    args = quick_args("InstrumentGrasp-v1", "sac", tmp_path / "kept", 32, n_envs=1)
     run_train(*args, "--init-from", str(source), "--init-replay-buffer")
     kept = SAC.load(tmp_path / "kept" / run_folder.FINAL_MODEL)
     kept.load_replay_buffer(run_folder.checkpoint_paths(tmp_path / "kept", 32)["replay_buffer"])
@@ -734,14 +734,14 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
 
     # A buffer filled by another number of envs, or a damaged one, is refused before the new
     # run folder is made.
-    wide = quick_args("InstrumentGrasp-v0", "sac", tmp_path / "wide", 32, n_envs=2)
+    wide = quick_args("InstrumentGrasp-v1", "sac", tmp_path / "wide", 32, n_envs=2)
     result = run_train(*wide, "--init-from", str(source), "--init-replay-buffer", check=False)
     assert result.returncode == 2
     assert "was filled by 1 env(s); this run has --n-envs 2" in result.stderr
     assert not (tmp_path / "wide").exists()
     buffer = run_folder.checkpoint_paths(source, 128)["replay_buffer"]
     buffer.write_bytes(buffer.read_bytes()[:1000])
-    broken = quick_args("InstrumentGrasp-v0", "sac", tmp_path / "broken", 32, n_envs=1)
+    broken = quick_args("InstrumentGrasp-v1", "sac", tmp_path / "broken", 32, n_envs=1)
     result = run_train(*broken, "--init-from", str(source), "--init-replay-buffer", check=False)
     assert result.returncode == 2
     assert f"{str(buffer)!r} is not a readable replay buffer" in result.stderr
@@ -749,10 +749,10 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
 
     # Another algorithm, or another observation space, is refused with the reason.
     with pytest.raises(SystemExit):
-        train.main(["--env", "InstrumentGrasp-v0", "--algo", "ppo", "--init-from", str(source)])
-    assert "is a sac run on InstrumentGrasp-v0; this run is ppo" in capsys.readouterr().err
+        train.main(["--env", "InstrumentGrasp-v1", "--algo", "ppo", "--init-from", str(source)])
+    assert "is a sac run on InstrumentGrasp-v1; this run is ppo" in capsys.readouterr().err
     result = run_train(
-        *quick_args("InstrumentGrasp-v0", "sac", tmp_path / "depth", 32, n_envs=1),
+        *quick_args("InstrumentGrasp-v1", "sac", tmp_path / "depth", 32, n_envs=1),
         *("--init-from", str(source), "--env-kwargs", "obs_mode=depth"),
         check=False,
     )
@@ -765,7 +765,7 @@ def test_a_trained_run_without_its_final_comparison_gets_it_from_resume(tmp_path
     """A run stopped during its final comparison (or trained without one) is complete but
     for it: --resume runs the comparison alone, without training further."""
     run_dir = tmp_path / "run"
-    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    run_train(*quick_args("ViewPlanning-v1", "ppo", run_dir, 64), "--final-episodes", "0")
     model = (run_dir / run_folder.FINAL_MODEL).read_bytes()
     assert "comparison" not in json.loads((run_dir / run_folder.RESULT).read_text())
     result = run_train("--resume", str(run_dir), "--final-episodes", "2")
@@ -798,7 +798,7 @@ def test_a_failure_while_learning_saves_a_checkpoint_to_resume_from(tmp_path, mo
     run_dir = tmp_path / "run"
     with pytest.raises(RuntimeError, match="training stopped on ZeroDivisionError") as error:
         train.main(
-            [*quick_args("ViewPlanning-v0", "ppo", run_dir, 256), "--save-freq", "0"]
+            [*quick_args("ViewPlanning-v1", "ppo", run_dir, 256), "--save-freq", "0"]
             + ["--final-episodes", "0"]
         )
     assert f"continue with: python train.py --resume {run_dir}" in str(error.value)
@@ -810,7 +810,7 @@ def grasp_ppo_args(run_dir: Path, steps: int, *flags: str) -> list[str]:
     """A one-env PPO run with 64-step rollouts, no evaluation and no final comparison
     (``flags`` may override them)."""
     return [
-        *quick_args("InstrumentGrasp-v0", "ppo", run_dir, steps, n_envs=1),
+        *quick_args("InstrumentGrasp-v1", "ppo", run_dir, steps, n_envs=1),
         *("--eval-freq", "0", "--final-episodes", "0", *flags),
     ]
 
@@ -848,7 +848,7 @@ def test_an_interrupted_sac_checkpoint_holds_a_transition_for_every_step_it_coun
 
     signal_during(monkeypatch, SAC, "train")  # the first update, after learning_starts
     run_dir = tmp_path / "run"
-    argv = quick_args("InstrumentGrasp-v0", "sac", run_dir, 500, n_envs=1)
+    argv = quick_args("InstrumentGrasp-v1", "sac", run_dir, 500, n_envs=1)
     assert train.main([*argv, "--save-freq", "0", "--eval-freq", "0"]) == 130
     steps = run_folder.latest_checkpoint(run_dir)
     buffer = run_folder.read_replay_buffer(
@@ -861,7 +861,7 @@ def test_a_ppo_evaluation_scores_the_weights_of_the_steps_it_is_labelled_with(tm
     """Evaluated at the step passing a multiple, before PPO's update, a row labelled 64 held
     the weights of 32 steps, and the last update was never scored."""
     run_dir = tmp_path / "run"
-    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    argv = quick_args("ViewPlanning-v1", "ppo", run_dir, 96, n_envs=1)
     assert train.main([*argv, "--save-freq", "32", "--eval-freq", "32"]) == 0
     assert [row["timesteps"] for row in run_folder.read_evaluations(run_dir)] == [32, 64, 96]
     policy = PPO.load(run_dir / run_folder.BEST_MODEL)
@@ -878,7 +878,7 @@ def test_a_ppo_evaluation_scores_the_weights_of_the_steps_it_is_labelled_with(tm
 def test_a_resumed_run_makes_up_the_evaluation_a_stop_cut_short(tmp_path):
     """A stop during the evaluation at 96 steps: not recorded, and the checkpoint is at 96."""
     run_dir = tmp_path / "run"
-    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    argv = quick_args("ViewPlanning-v1", "ppo", run_dir, 96, n_envs=1)
     assert train.main([*argv, "--save-freq", "32", "--eval-freq", "32"]) == 0
     history = run_folder.read_evaluations(run_dir)
     path = run_dir / run_folder.EVALUATIONS
@@ -897,7 +897,7 @@ def test_a_run_killed_after_a_checkpoint_resumes_without_counting_steps_twice(tm
     from agents.plotting import training_returns
 
     run_dir = tmp_path / "run"
-    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    argv = quick_args("ViewPlanning-v1", "ppo", run_dir, 96, n_envs=1)
     assert train.main([*argv, "--save-freq", "32", "--eval-freq", "32"]) == 0
     assert training_returns(run_dir)[0][-1] == 96  # 24 episodes of 4 views
     for steps in (64, 96):  # what the killed process had not saved yet
@@ -928,7 +928,7 @@ def test_a_run_stopped_half_way_through_a_rollout_counts_its_episodes_once(tmp_p
 
     monkeypatch.setattr(training.RolloutBoundary, "_on_step", signal_at_48)
     run_dir = tmp_path / "run"
-    argv = quick_args("ViewPlanning-v0", "ppo", run_dir, 96, n_envs=1)
+    argv = quick_args("ViewPlanning-v1", "ppo", run_dir, 96, n_envs=1)
     assert train.main([*argv, "--save-freq", "0", "--eval-freq", "0"]) == 130
     assert run_folder.latest_checkpoint(run_dir) == 32
     monkeypatch.undo()
@@ -954,7 +954,7 @@ def test_resumes_count_no_step_twice_after_episodes_a_stop_cut_off(tmp_path, mon
     run_dir = tmp_path / "run"
     # 4-view episodes, 6-step rollouts, a checkpoint every 6 steps.
     argv = quick_args(
-        "ViewPlanning-v0", "ppo", run_dir, 30, n_envs=1, hyperparams=("n_steps=6", "batch_size=6")
+        "ViewPlanning-v1", "ppo", run_dir, 30, n_envs=1, hyperparams=("n_steps=6", "batch_size=6")
     )
     argv += ["--save-freq", "6", "--eval-freq", "0", "--final-episodes", "0"]
     assert train.main(argv) == 143  # 128 + SIGTERM, as a shell reports it
@@ -994,7 +994,7 @@ def test_each_start_of_training_writes_monitor_files_of_its_own(tmp_path, monkey
     frozen = types.SimpleNamespace(time=lambda: 1_700_000_000.0, time_ns=lambda: next(ticks))
     monkeypatch.setattr(training, "time", frozen)
     config = training.resolve_config(
-        env_id="InstrumentGrasp-v0", algo="ppo", hyperparams={"n_envs": 1}
+        env_id="InstrumentGrasp-v1", algo="ppo", hyperparams={"n_envs": 1}
     )
     for _ in range(2):
         training.build_vec_env(config, tmp_path).close()
@@ -1123,7 +1123,7 @@ def test_a_signal_before_the_first_step_leaves_no_run_folder(tmp_path, monkeypat
     )
     run_dir = tmp_path / "run"
     argv = [
-        *("--env", "InstrumentGrasp-v0", "--algo", "sac", "-n", "64", "--run-dir", str(run_dir)),
+        *("--env", "InstrumentGrasp-v1", "--algo", "sac", "-n", "64", "--run-dir", str(run_dir)),
         *("--eval-freq", "0", "--final-episodes", "0", "--no-progress-bar", "--hyperparams"),
         *("buffer_size=500", "learning_starts=10", "demonstrations.episodes=1"),
     ]
@@ -1135,7 +1135,7 @@ def test_a_signal_before_the_first_step_leaves_no_run_folder(tmp_path, monkeypat
 def test_a_run_with_the_largest_seed_resumes(tmp_path):
     """A resumed run draws a new stream seeded with seed + steps, wrapped into numpy's range."""
     run_dir = tmp_path / "run"
-    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 64)
+    args = quick_args("ViewPlanning-v1", "ppo", run_dir, 64)
     run_train(*args, "--seed", str(2**32 - 1), "--final-episodes", "0")
     run_train("--resume", str(run_dir), "-n", "128", "--final-episodes", "0")
     assert run_folder.latest_checkpoint(run_dir) == 128
@@ -1144,15 +1144,32 @@ def test_a_run_with_the_largest_seed_resumes(tmp_path):
 @pytest.mark.slow
 def test_resuming_a_finished_run_needs_more_steps(tmp_path):
     run_dir = tmp_path / "run"
-    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    run_train(*quick_args("ViewPlanning-v1", "ppo", run_dir, 64), "--final-episodes", "0")
     result = run_train("--resume", str(run_dir), check=False)
     assert result.returncode == 2
     assert "pass a larger --timesteps" in result.stderr
 
 
-def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(tmp_path):
-    run_dir = tmp_path / "run"
-    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+@pytest.fixture(scope="module")
+def quick_ppo_run(tmp_path_factory) -> Path:
+    """A finished 64-step PPO run on ViewPlanning-v1, trained once for the tests that edit a
+    copy of it (:func:`copy_of`)."""
+    run_dir = tmp_path_factory.mktemp("quick") / "run"
+    assert (
+        train.main([*quick_args("ViewPlanning-v1", "ppo", run_dir, 64), "--final-episodes", "0"])
+        == 0
+    )
+    return run_dir
+
+
+def copy_of(run: Path, tmp_path: Path) -> Path:
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    return copy
+
+
+def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(quick_ppo_run, tmp_path):
+    run_dir = copy_of(quick_ppo_run, tmp_path)
     path = run_dir / run_folder.CONFIG
     path.write_text(path.read_text().replace("algo: ppo", "algo: a2c"))
     result = run_train("--resume", str(run_dir), "-n", "128", check=False)
@@ -1180,10 +1197,9 @@ def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(tmp_path):
     ],
 )
 def test_a_damaged_config_is_refused_on_resume_before_the_folder_changes(
-    saved, edited, message, tmp_path
+    saved, edited, message, quick_ppo_run, tmp_path
 ):
-    run_dir = tmp_path / "run"
-    run_train(*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0")
+    run_dir = copy_of(quick_ppo_run, tmp_path)
     path = run_dir / run_folder.CONFIG
     assert f"\n{saved}\n" in path.read_text()
     path.write_text(path.read_text().replace(f"\n{saved}\n", f"\n{edited}\n"))
@@ -1194,14 +1210,10 @@ def test_a_damaged_config_is_refused_on_resume_before_the_folder_changes(
     assert run_files(run_dir) == before
 
 
-def test_a_hand_edited_run_defining_setting_is_refused_on_resume(tmp_path, capsys):
+def test_a_hand_edited_run_defining_setting_is_refused_on_resume(quick_ppo_run, tmp_path, capsys):
     """Resumed, an edited hyper-parameter (gamma: abc) trained with the saved one and exit 0,
     and n_envs 2 -> 3 was taken silently and changed training."""
-    run_dir = tmp_path / "run"
-    assert (
-        train.main([*quick_args("ViewPlanning-v0", "ppo", run_dir, 64), "--final-episodes", "0"])
-        == 0
-    )
+    run_dir = copy_of(quick_ppo_run, tmp_path)
     path = run_dir / run_folder.CONFIG
     written = path.read_text()
     edits = {
@@ -1301,7 +1313,7 @@ def test_a_resume_keeps_the_runs_first_commit_and_records_its_own(tmp_path, monk
     """A resume used to overwrite the run's commit and versions with its own: a run trained
     at one commit and resumed at another then named only the second. Each resume's changes
     to a dirty checkout go to a patch of their own."""
-    config = {"env_id": "InstrumentGrasp-v0", "algo": "sac", "seed": 0, "n_timesteps": 64}
+    config = {"env_id": "InstrumentGrasp-v1", "algo": "sac", "seed": 0, "n_timesteps": 64}
     monkeypatch.setattr(sys, "argv", ["train.py", "--algo", "sac"])
     monkeypatch.setattr(run_folder, "git_commit", lambda directory=None: "0" * 40)  # clean
     run_folder.write_config(tmp_path, config)
@@ -1340,7 +1352,7 @@ def test_a_resume_keeps_the_runs_first_commit_and_records_its_own(tmp_path, monk
 
 def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path):
     run_dir = tmp_path / "run"
-    args = quick_args("ViewPlanning-v0", "ppo", run_dir, 64, n_envs=1)  # checkpoints at 32, 64
+    args = quick_args("ViewPlanning-v1", "ppo", run_dir, 64, n_envs=1)  # checkpoints at 32, 64
     run_train(*args, "--final-episodes", "0")
     before = run_files(run_dir)
     result = run_train("--resume", str(run_dir), "-n", "128", "--torch-threads", "0", check=False)
@@ -1378,7 +1390,7 @@ def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, vec_
     process = subprocess.Popen(
         [
             sys.executable, "train.py",
-            *quick_args("ViewPlanning-v0", "ppo", run_dir, total),
+            *quick_args("ViewPlanning-v1", "ppo", run_dir, total),
             "--save-freq", "0", "--eval-freq", "0", "--vec-env", vec_env,
         ],
         cwd=REPO,
@@ -1521,7 +1533,7 @@ def test_perception_extractor_encodes_every_observation_key():
     import liuxing_envs  # noqa: F401
     from agents.policies import ImageEncoder, OccupancyEncoder, PerceptionExtractor
 
-    env = gym.make("ViewPlanning-v0")
+    env = gym.make("ViewPlanning-v1")
     extractor = PerceptionExtractor(env.observation_space, image_features=32, map_features=16)
     assert isinstance(extractor.encoders["depth"], ImageEncoder)
     assert isinstance(extractor.encoders["map"], OccupancyEncoder)
@@ -1555,7 +1567,7 @@ def test_perception_extractor_stacks_free_space_onto_the_map():
     import liuxing_envs  # noqa: F401
     from agents.policies import PerceptionExtractor
 
-    env = gym.make("ViewPlanning-v0", observe_free_space=True)
+    env = gym.make("ViewPlanning-v1", observe_free_space=True)
     extractor = PerceptionExtractor(env.observation_space, image_features=32, map_features=16)
     assert "free_space" not in extractor.encoders
     assert extractor.encoders["map"].channels == 2
@@ -1582,11 +1594,11 @@ def test_perception_extractor_stacks_free_space_onto_the_map():
 @pytest.mark.parametrize(
     "env_id, env_kwargs",
     [
-        ("ViewPlanning-v0", {"action_mode": "discrete"}),
-        ("ViewPlanning-v0", {"action_mode": "continuous"}),
-        ("InstrumentGrasp-v0", {"obs_mode": "state"}),
-        ("InstrumentGrasp-v0", {"obs_mode": "depth"}),
-        ("InstrumentGrasp-v0", {"obs_mode": "rgbd"}),
+        ("ViewPlanning-v1", {"action_mode": "discrete"}),
+        ("ViewPlanning-v1", {"action_mode": "continuous"}),
+        ("InstrumentGrasp-v1", {"obs_mode": "state"}),
+        ("InstrumentGrasp-v1", {"obs_mode": "depth"}),
+        ("InstrumentGrasp-v1", {"obs_mode": "rgbd"}),
     ],
 )
 @pytest.mark.parametrize("extractor", ["combined", "perception"])
@@ -1617,10 +1629,10 @@ def test_every_observation_preset_trains_with_multi_input_policy(env_id, env_kwa
 def test_the_shipped_view_planning_policy_beats_the_four_view_baseline():
     from agents.evaluation import compare_with_baseline
 
-    shipped = REPO / "policies" / "ViewPlanning-v0" / "ppo"
+    shipped = REPO / "policies" / "ViewPlanning-v1" / "ppo"
     config = run_folder.read_config(shipped)
     result = compare_with_baseline(
-        "ViewPlanning-v0", load_policy(shipped), config["env_kwargs"], 20, reference=False
+        "ViewPlanning-v1", load_policy(shipped), config["env_kwargs"], 20, reference=False
     )
     assert result["policy"]["mean"] > result["baseline"]["mean"] + 0.03
 
@@ -1629,9 +1641,9 @@ def test_the_shipped_view_planning_policy_beats_the_four_view_baseline():
 def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
     from agents.evaluation import run_episodes
 
-    shipped = REPO / "policies" / "InstrumentGrasp-v0" / "sac"
+    shipped = REPO / "policies" / "InstrumentGrasp-v1" / "sac"
     config = run_folder.read_config(shipped)
-    env = make_env("InstrumentGrasp-v0", config["env_kwargs"])
+    env = make_env("InstrumentGrasp-v1", config["env_kwargs"])
     episodes = run_episodes(env, load_policy(shipped), range(2000, 2020), ("is_success",))
     env.close()
     successes = sum(episode["is_success"] for episode in episodes)
@@ -1641,10 +1653,10 @@ def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
     assert successes >= 16
 
 
-def test_the_readme_runs_the_shipped_grasp_policy_in_its_own_env_kwargs(monkeypatch):
+def test_the_readme_runs_the_shipped_grasp_policy_in_its_own_task(monkeypatch):
     """The README's snippet for using a shipped policy in one's own code: it must make the
-    env the policy was tuned in (servo damping 0.7, the guarded approach), not gym.make's
-    defaults."""
+    env the policy was tuned in (servo damping 0.7, the guarded approach), which
+    InstrumentGrasp-v1's defaults are."""
     readme = (REPO / "README.md").read_text(encoding="utf-8")
     section = readme.split("### A shipped policy in your own code", 1)[1]
     snippet = section.split("```python\n", 1)[1].split("```", 1)[0]
@@ -1653,7 +1665,7 @@ def test_the_readme_runs_the_shipped_grasp_policy_in_its_own_env_kwargs(monkeypa
     exec(compile(snippet, "README.md", "exec"), namespace)  # noqa: S102 (our own docs)
     env = namespace["env"]
     try:
-        assert env.spec.id == "InstrumentGrasp-v0"
+        assert env.spec.id == "InstrumentGrasp-v1"
         assert env.unwrapped.servo_damping_ratio == 0.7
         assert env.unwrapped.approach_guard_fingers
         assert env.action_space.contains(namespace["action"])

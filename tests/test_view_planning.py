@@ -1,6 +1,5 @@
-"""ViewPlanning-v0: API conformance, reward bookkeeping, coverage, determinism, bad input."""
+"""ViewPlanning-v1 (and the deprecated v0): API, reward bookkeeping, coverage, bad input."""
 
-import copy
 import gc
 import pickle
 import warnings
@@ -15,16 +14,13 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import liuxing_envs  # noqa: F401  (registers the ids)
 from agents.view_baselines import FourViewpointBaseline, GreedyOracle, RandomViews, UniformViews
 from liuxing_envs import forking
-from liuxing_envs.envs.view_planning import (
-    DEFAULT_DISCRETE_RADIUS,
-    DEFAULT_VIEW_BUDGET,
-    ViewPlanningEnv,
-)
+from liuxing_envs.envs.view_planning import ViewPlanningEnv, ViewPlanningV0Env
+from liuxing_envs.envs.view_planning_settings import V0, V1
 from liuxing_envs.perception.pointcloud import camera_rays
 from liuxing_envs.sim.viewpoints import look_at
 from tests.scripts import outcomes_without_opengl
 
-ENV_ID = "ViewPlanning-v0"
+ENV_ID = "ViewPlanning-v1"
 #: Small and fast settings shared by most tests (3 objects, one scale).
 FAST = {"objects": ["box", "mug", "cylinder"], "scales": (1.0,), "coverage_samples": 2048}
 
@@ -49,11 +45,38 @@ def run_episode(env, policy, seed):
     return obs, rewards, infos
 
 
-def test_registered_with_the_view_budget_as_episode_limit():
-    spec = gym.spec(ENV_ID)
-    assert spec.max_episode_steps == DEFAULT_VIEW_BUDGET == 4
-    env = gym.make("liuxing_envs:ViewPlanning-v0", **FAST)
+def test_v1_is_registered_without_a_time_limit_and_v0_with_its_budget_of_4():
+    assert gym.spec(ENV_ID).max_episode_steps is None
+    assert gym.spec("ViewPlanning-v0").max_episode_steps == V0.task.view_budget == 4
+    env = gym.make("liuxing_envs:ViewPlanning-v1", **FAST)
     assert isinstance(env.unwrapped, ViewPlanningEnv)
+    assert env.unwrapped.settings.differences(V1) == {
+        name: (value, V1.flat()[name]) for name, value in env.unwrapped.settings.flat().items()
+        if name in FAST
+    }  # fmt: skip
+    env.close()
+
+
+@pytest.mark.parametrize("budget", [1, 8])
+def test_v1_runs_any_view_budget_to_its_end(budget):
+    """ViewPlanning-v0's registered time limit cut view_budget=8 short after 4 views."""
+    env = gym.make(ENV_ID, view_budget=budget, **FAST)
+    env.reset(seed=0)
+    flags = []
+    for _ in range(budget):
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        flags.append((terminated, truncated))
+    assert flags == [(False, False)] * (budget - 1) + [(True, False)]
+    assert info["views_used"] == budget
+    env.close()
+
+
+def test_v0_warns_naming_v1_and_keeps_its_depth_backend():
+    with pytest.warns(DeprecationWarning, match=r"ViewPlanning-v0 is deprecated.*ViewPlanning-v1"):
+        env = gym.make("ViewPlanning-v0", **FAST)
+    assert isinstance(env.unwrapped, ViewPlanningV0Env)
+    assert env.unwrapped.settings.sensor.depth_backend == "auto" == V0.sensor.depth_backend
+    assert V1.differences(V0) == {"depth_backend": ("raycast", "auto")}
     env.close()
 
 
@@ -99,7 +122,7 @@ def test_the_arm_in_view_is_filtered_out_of_the_map_not_out_of_the_image():
         observations.append(env.step(3)[0])
     np.testing.assert_array_equal(observations[0]["depth"], observations[1]["depth"])
     on_arm = filtered.camera.pixels_on_geoms(
-        filtered._depth, filtered.data, filtered.arm.geom_ids, 0.003
+        filtered.depth, filtered.data, filtered.arm.geom_ids, 0.003
     )
     assert on_arm.sum() > 300
     # Which geom each pixel's ray meets first, by MuJoCo's own ray caster.
@@ -108,7 +131,7 @@ def test_the_arm_in_view_is_filtered_out_of_the_map_not_out_of_the_image():
     first_hit = np.zeros(1, dtype=np.int32)
     arm = set(filtered.arm.geom_ids.tolist())
     hits_arm = np.zeros_like(on_arm)
-    for row, col in zip(*np.nonzero(filtered._depth > 0), strict=True):
+    for row, col in zip(*np.nonzero(filtered.depth > 0), strict=True):
         groups = np.array([1, 1, 1, 0, 0, 0], dtype=np.uint8)
         mujoco.mj_ray(
             filtered.model, filtered.data, position, rays[row, col], groups, 1, -1, first_hit
@@ -575,33 +598,6 @@ def test_a_forked_worker_refuses_reconstruct_instead_of_hanging(monkeypatch):
     assert len(reconstruction.cloud.points) > 0 and 0.0 < metrics["fscore"] <= 1.0
 
 
-def test_a_deep_copy_scans_on_alone_and_shares_the_process_caches():
-    env = ViewPlanningEnv(**FAST)
-    env.reset(seed=4)
-    env.step(env.view_to_action(np.pi / 2, np.pi / 4, 0.38))
-    clone = copy.deepcopy(env)
-    key = (env.placed.name, env.placed.scale)
-    scenes, scenes_copy = env._variant_scenes[key], clone._variant_scenes[key]
-    assert scenes_copy._with_arm.model is scenes._with_arm.model
-    assert scenes_copy._with_arm.data is not scenes._with_arm.data
-    # The arm's collision scene: the object stands where it stood.
-    np.testing.assert_array_equal(
-        scenes_copy._with_arm.data.geom_xpos, scenes._with_arm.data.geom_xpos
-    )
-    actions = [env.view_to_action(-np.pi / 2, np.pi / 3, 0.4), env.view_to_action(0.0, 1.2, 0.36)]
-    copied = [clone.step(action) for action in actions]  # first: the original must not see it
-    original = [env.step(action) for action in actions]
-    for mine, theirs in zip(original, copied, strict=True):
-        (obs, reward, *_, info), (obs_copy, reward_copy, *_, info_copy) = mine, theirs
-        for key in obs:
-            np.testing.assert_array_equal(obs[key], obs_copy[key])
-        assert reward == reward_copy and info["coverage"] == info_copy["coverage"]
-        assert info["coverage_gain"] > 0
-    assert clone.coverage is not env.coverage and clone.coverage.samples is env.coverage.samples
-    env.close()
-    clone.close()
-
-
 def test_render_shows_the_scene_with_points_and_frustum():
     env = ViewPlanningEnv(render_mode="rgb_array", **FAST)
     env.reset(seed=0)
@@ -792,8 +788,8 @@ def test_depth_noise_can_be_given_as_a_config_gives_it():
 
     named = ViewPlanningEnv(depth_noise="realsense", **FAST)
     mapped = ViewPlanningEnv(depth_noise={"sigma_base": 0.002, "dropout_prob": 0.1}, **FAST)
-    assert named._depth_noise == DepthNoise.realsense_like()
-    assert mapped._depth_noise == DepthNoise(sigma_base=0.002, dropout_prob=0.1)
+    assert named.settings.sensor.depth_noise == DepthNoise.realsense_like()
+    assert mapped.settings.sensor.depth_noise == DepthNoise(sigma_base=0.002, dropout_prob=0.1)
     plain = ViewPlanningEnv(**FAST)
     clean, _ = plain.reset(seed=3)
     noisy, _ = mapped.reset(seed=3)
@@ -890,7 +886,7 @@ def test_ray_cast_stand_in_scene_gives_the_live_models_image(motion):
         env.reset(seed=seed)
         for _ in range(2):
             env.step(env.action_space.sample())
-            np.testing.assert_array_equal(env._depth, env.camera.render(env.data))
+            np.testing.assert_array_equal(env.depth, env.camera.render(env.data))
     env.close()
 
 
@@ -904,10 +900,10 @@ def test_embree_backend_sees_what_the_raycast_backend_sees():
         images, coverages = [], []
         for seed in range(6):
             env.reset(seed=seed)
-            images.append(env._depth.copy())
+            images.append(env.depth.copy())
             for _ in range(4):
                 _, _, _, _, info = env.step(env.action_space.sample())
-                images.append(env._depth.copy())
+                images.append(env.depth.copy())
                 coverages.append(info["coverage"])
         episodes[backend] = (np.array(images), np.array(coverages))
         if backend == "embree":
@@ -946,7 +942,7 @@ def test_collision_checks_in_the_stand_in_scene_match_the_live_model():
             assert set(stand_in_contacts) == set(env.arm.collisions(goal))
             hits["free"] += live.free
             hits["object"] += any(object_geom in (c.geom1 + c.geom2) for c in live.contacts)
-            scenes = env._variant_scenes[(env.placed.name, env.placed.scale)]
+            scenes = env.scene.stand_ins(env.placed.name, env.placed.scale)
             env.arm.use_collision_scene(*scenes.collision_scene(env.placed))
     assert min(hits.values()) >= 5, hits  # free paths and paths into the object were both tried
     env.close()
@@ -962,13 +958,13 @@ def test_envs_of_one_process_share_stand_ins_without_disturbing_each_other():
     eye = np.array([0.45, 0.0, 0.06])  # inside the table-shaped object's convex hull
     rotation = look_at(eye, eye - [0.0, 0.0, 1.0], up=[1.0, 0.0, 0.0])
     inside = first.arm.solve_ik(eye, rotation, roll_free=True, check_collisions=False).qpos
-    image = first._render_depth(None)
+    image = first.scene.render_depth(None)
     second = ViewPlanningEnv(objects=["box", "table"], scales=(1.0,), depth_backend="raycast")
     second.reset(seed=1, options={**options, "object": "box", "position": (0.6, 0.25)})
     key = ("table", 1.0)
-    assert first._variant_scenes[key]._with_arm.model is second._variant_scenes[key]._with_arm.model
+    assert first.scene.stand_ins(*key).model is second.scene.stand_ins(*key).model
     assert any("object_table" in c.geom1 + c.geom2 for c in first.arm.collisions(inside))
-    np.testing.assert_array_equal(first._render_depth(None), image)
+    np.testing.assert_array_equal(first.scene.render_depth(None), image)
     first.close()
     second.close()
 
@@ -979,9 +975,9 @@ def test_a_shared_stand_in_lives_as_long_as_an_env_uses_it():
     # A shape no other test uses: an env of another test may still hold a library object's.
     key = ("procedural_4321", 1.0)
     first = ViewPlanningEnv(objects=["procedural_4321"], scales=(1.0,))
-    model = weakref.ref(first._variant_scenes[key]._with_arm.model)
+    model = weakref.ref(first.scene.stand_ins(*key).model)
     second = ViewPlanningEnv(objects=["procedural_4321"], scales=(1.0,))
-    assert second._variant_scenes[key]._with_arm.model is model()
+    assert second.scene.stand_ins(*key).model is model()
     second.reset(seed=0)
     first.close()
     del first
@@ -1070,7 +1066,7 @@ def test_coverage_counts_what_the_envs_own_view_space_sees():
     discrete = ViewPlanningEnv(**kwargs, action_mode="discrete", discrete_elevations_deg=(30, 50))
     discrete.reset(seed=0)
     candidates = observable_samples(
-        "t_pipe", 1.0, 2048, radii=(DEFAULT_DISCRETE_RADIUS,), elevations_deg=(30, 50, 90)
+        "t_pipe", 1.0, 2048, radii=(V1.action.discrete_radius,), elevations_deg=(30, 50, 90)
     )
     np.testing.assert_array_equal(discrete.coverage.observable, candidates.observable & above_crop)
     for env in (wide, narrow, discrete):

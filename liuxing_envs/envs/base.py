@@ -29,11 +29,17 @@ class LiuxingEnv(gym.Env):
     #: from the settings by :meth:`rebuild_after_copy`.
     rebuilt_on_copy: ClassVar[tuple[str, ...]] = ()
 
+    #: A deprecated version's (old id, new id, what the new one changes): making it warns.
+    deprecation: ClassVar[tuple[str, str, str] | None] = None
+
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
-        if "__init__" not in cls.__dict__:
+        own = cls.__dict__
+        if "__init__" not in own and "default_settings" not in own:
             return
-        init = cls.__init__
+        # A version that only changes the defaults inherits the checked __init__: its own
+        # wrapper shows and checks its own defaults.
+        init = own.get("__init__") or getattr(cls.__init__, "__wrapped__", cls.__init__)
 
         @functools.wraps(init)
         def checked_init(self, *args, **settings):
@@ -44,9 +50,32 @@ class LiuxingEnv(gym.Env):
                         f"{cls.__name__} has no keyword argument {name!r}"
                         f"{closest(name, accepted)}; allowed: {', '.join(accepted)}"
                     )
+            if type(self) is cls and cls.deprecation is not None:
+                warn_deprecated(*cls.deprecation)
             init(self, *args, **settings)
 
+        if cls.settings_type is not None:
+            checked_init.__signature__ = cls._keyword_signature(init)
         cls.__init__ = checked_init
+
+    @classmethod
+    def _keyword_signature(cls, init) -> inspect.Signature:
+        """``init``'s signature with its ``**settings`` spelt out: every setting a keyword-only
+        argument with the class's default (``default_settings``), so that ``help()``, IDEs and
+        ``inspect`` show the keyword interface :meth:`keyword_names` lists."""
+        own = inspect.signature(init).parameters.values()
+        defaults = getattr(cls, "default_settings", None) or cls.settings_type()
+        settings = [
+            inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=value)
+            for name, value in defaults.flat().items()
+        ]
+        positional = [p for p in own if p.kind is not inspect.Parameter.KEYWORD_ONLY]
+        keywords = [p for p in own if p.kind is inspect.Parameter.KEYWORD_ONLY]
+        return inspect.Signature(
+            [p for p in positional if p.kind is not inspect.Parameter.VAR_KEYWORD]
+            + settings
+            + keywords
+        )
 
     @classmethod
     def keyword_names(cls) -> tuple[str, ...]:
@@ -55,6 +84,15 @@ class LiuxingEnv(gym.Env):
             return cls.settings_type.flat_names() + cls.settings_type.extra_keywords
         parameters = inspect.signature(cls.__init__).parameters.values()
         return tuple(p.name for p in parameters if p.kind is inspect.Parameter.KEYWORD_ONLY)
+
+    #: The setting that sets how many steps an episode runs at most.
+    episode_length_setting: ClassVar[str] = ""
+
+    @property
+    def episode_length(self) -> int:
+        """How many steps an episode runs at most (the env ends it there itself, unless a
+        deprecated id's registered time limit is shorter)."""
+        return self.settings.flat()[self.episode_length_setting]
 
     def close(self) -> None:
         """Marks the env closed: :meth:`step` is refused until ``reset()`` reopens it (each

@@ -101,16 +101,16 @@ class GraspWorld:
         self._nominal_inertia = model.body_inertia[self.body].copy()
         self._friction_geoms = self._friction_partners()
         self._nominal_friction = model.geom_friction[self._friction_geoms].copy()
-        self._arm_actuators = np.array(
+        self.arm_actuators = np.array(
             [
                 model.actuator(n).id
                 for n in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
             ]
         )
         # A softer servo keeps its damping ratio: kp scales, kv with its square root.
-        model.actuator_gainprm[self._arm_actuators, 0] *= arm_stiffness
-        model.actuator_biasprm[self._arm_actuators, 1] *= arm_stiffness
-        model.actuator_biasprm[self._arm_actuators, 2] *= math.sqrt(arm_stiffness)
+        model.actuator_gainprm[self.arm_actuators, 0] *= arm_stiffness
+        model.actuator_biasprm[self.arm_actuators, 1] *= arm_stiffness
+        model.actuator_biasprm[self.arm_actuators, 2] *= math.sqrt(arm_stiffness)
         if servo_damping_ratio is not None:
             self._damp_at_ready_pose(servo_damping_ratio)
         self._camera_id = model.camera(WRIST_CAMERA).id
@@ -158,14 +158,14 @@ class GraspWorld:
         if jaw_clearance is not None:
             opening = min(MAX_OPENING, self.instrument.grasp_width + jaw_clearance)
         if tool_start is None:
-            self._place_tool(READY_TCP, 0.0, opening, tool_start)
+            self.place_tool(READY_TCP, 0.0, opening, tool_start)
         else:
             mujoco.mj_kinematics(model, data)
             tool_yaw = jaws_across(self.grasp_axis()) + tool_yaw_error
             tcp = np.clip(
                 self.grasp_point() + tool_start, self.workspace_lower, self.workspace_upper
             )
-            self._place_tool(tcp, tool_yaw, opening, tool_start)
+            self.place_tool(tcp, tool_yaw, opening, tool_start)
             # An offset off the handle, or a turned tool, can put a finger into another part
             # of the instrument (a ring, a tine) or the tray's rim: the settling steps would
             # then shove it, or start the episode past the hard force limit.
@@ -177,11 +177,11 @@ class GraspWorld:
                     )
                 tcp = tcp + [0.0, 0.0, TOOL_START_RAISE]
                 tcp[2] = min(tcp[2], self.workspace_upper[2])
-                self._place_tool(tcp, tool_yaw, opening, tool_start)
+                self.place_tool(tcp, tool_yaw, opening, tool_start)
         mujoco.mj_forward(model, data)
         mujoco.mj_step(model, data, nstep=SETTLE_STEPS)
 
-    def _place_tool(self, tcp, tool_yaw: float, opening: float, tool_start) -> None:
+    def place_tool(self, tcp, tool_yaw: float, opening: float, tool_start) -> None:
         """Teleport the arm, pointing down, to the tool centre ``tcp`` turned by ``tool_yaw``,
         with the fingers ``opening`` apart."""
         ready = self._pointing_down(tcp, tool_yaw)
@@ -215,7 +215,7 @@ class GraspWorld:
         scratch.qpos[self.arm.qpos_indices] = ready.qpos
         mujoco.mj_forward(model, scratch)
         unit, column = np.zeros(model.nv), np.zeros(model.nv)
-        for actuator in self._arm_actuators:
+        for actuator in self.arm_actuators:
             dof = model.jnt_dofadr[model.actuator_trnid[actuator, 0]]
             unit[:] = 0.0
             unit[dof] = 1.0
@@ -257,10 +257,10 @@ class GraspWorld:
         return bool(np.all(np.abs(placed - self.tray.center) <= limit))
 
     def arm_ctrl(self) -> np.ndarray:
-        return self.data.ctrl[self._arm_actuators].copy()
+        return self.data.ctrl[self.arm_actuators].copy()
 
     def set_arm_ctrl(self, qpos: np.ndarray) -> None:
-        self.data.ctrl[self._arm_actuators] = qpos
+        self.data.ctrl[self.arm_actuators] = qpos
 
     def tcp_position(self) -> np.ndarray:
         return self.data.site_xpos[self._tcp_site].copy()

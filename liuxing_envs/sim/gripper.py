@@ -65,26 +65,26 @@ class Gripper:
 
         joints = ids("joint", FINGER_JOINTS)
         self._joints = joints
-        self._qpos_idx = model.jnt_qposadr[joints]
+        self.finger_qpos = model.jnt_qposadr[joints]
         self._dof_idx = model.jnt_dofadr[joints]
-        self._actuators = ids("actuator", FINGER_ACTUATORS)
-        self._ctrl_high = model.actuator_ctrlrange[self._actuators, 1].copy()
+        self.finger_actuators = ids("actuator", FINGER_ACTUATORS)
+        self._ctrl_high = model.actuator_ctrlrange[self.finger_actuators, 1].copy()
         self.pad_geoms = ids("geom", PAD_GEOMS)
         sensors = ids("sensor", PAD_TOUCH_SENSORS)
         self._touch_adr = model.sensor_adr[sensors]
-        self.max_force = float(model.actuator_forcerange[self._actuators[0], 1])
+        self.max_force = float(model.actuator_forcerange[self.finger_actuators[0], 1])
         self._wrench = np.zeros(6)
 
     def opening(self) -> float:
         """Distance between the pads (m)."""
-        left, right = self.data.qpos[self._qpos_idx].tolist()  # np.sum costs 5x more
+        left, right = self.data.qpos[self.finger_qpos].tolist()  # np.sum costs 5x more
         return left + right
 
     def command(self, opening: float) -> None:
         """Set the servo target: the pad distance to close or open to (m), clipped to range."""
         # Floats, not np.clip: this runs every control step, and np.clip costs ~10 µs a call.
         half = 0.5 * min(max(float(opening), 0.0), MAX_OPENING)
-        self.data.ctrl[self._actuators] = half
+        self.data.ctrl[self.finger_actuators] = half
 
     def grip(self, force: float) -> None:
         """Force command, as an industrial gripper's force setting: each finger servos to the
@@ -93,8 +93,8 @@ class Gripper:
         fingers closing on nothing stop at the closed position without pressing the pads
         together. Needs :meth:`use_force_commands` first."""
         limit = min(abs(float(force)), self.max_force)
-        self.model.actuator_forcerange[self._actuators] = (-limit, limit)
-        self.data.ctrl[self._actuators] = 0.0 if force > 0.0 else 0.5 * MAX_OPENING
+        self.model.actuator_forcerange[self.finger_actuators] = (-limit, limit)
+        self.data.ctrl[self.finger_actuators] = 0.0 if force > 0.0 else 0.5 * MAX_OPENING
 
     def use_force_commands(self) -> None:
         """Damp the fingers for :meth:`grip` (see FORCE_COMMAND_DAMPING)."""
@@ -104,10 +104,10 @@ class Gripper:
         """Teleport the fingers to ``opening`` at rest and hold them there with the servo's
         full force (for resets)."""
         half = 0.5 * float(np.clip(opening, 0.0, MAX_OPENING))
-        self.data.qpos[self._qpos_idx] = half
+        self.data.qpos[self.finger_qpos] = half
         self.data.qvel[self._dof_idx] = 0.0
-        self.data.ctrl[self._actuators] = half
-        self.model.actuator_forcerange[self._actuators] = (-self.max_force, self.max_force)
+        self.data.ctrl[self.finger_actuators] = half
+        self.model.actuator_forcerange[self.finger_actuators] = (-self.max_force, self.max_force)
 
     def closing_directions(self) -> np.ndarray:
         """World-frame unit vectors along which the left and right pad move as their finger
@@ -121,10 +121,10 @@ class Gripper:
     def limit_closing(self, finger: int, travel: float) -> bool:
         """Keep ``finger``'s servo target from closing more than ``travel`` (m) past where the
         finger is now; True where that shortened the target."""
-        actuator = self._actuators[finger]
+        actuator = self.finger_actuators[finger]
         # A finger pressed a hair past its travel's end must not get a target beyond it.
         lowest = min(
-            float(self.data.qpos[self._qpos_idx[finger]]) - travel, self._ctrl_high[finger]
+            float(self.data.qpos[self.finger_qpos[finger]]) - travel, self._ctrl_high[finger]
         )
         if self.data.ctrl[actuator] >= lowest:
             return False
@@ -132,7 +132,7 @@ class Gripper:
         return True
 
     def commanded_opening(self) -> float:
-        left, right = self.data.ctrl[self._actuators].tolist()
+        left, right = self.data.ctrl[self.finger_actuators].tolist()
         return left + right
 
     def fingertip_forces(self) -> np.ndarray:
@@ -141,7 +141,7 @@ class Gripper:
 
     def actuator_forces(self) -> np.ndarray:
         """Force each finger servo applies (N; negative = closing)."""
-        return self.data.actuator_force[self._actuators].copy()
+        return self.data.actuator_force[self.finger_actuators].copy()
 
     def pads_touching(self, body_id: int) -> np.ndarray:
         """Whether the left and right pad are each in contact with ``body_id``."""

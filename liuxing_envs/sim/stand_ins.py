@@ -3,7 +3,6 @@ loops (path collision checks, ray casting) run instead of the env's model of eve
 
 from __future__ import annotations
 
-import copy
 import weakref
 
 import mujoco
@@ -49,6 +48,11 @@ class VariantScenes:
         if self._without_arm.model.ngeom != model.ngeom - self._arm_geoms.size:
             raise RuntimeError("the arm-free stand-in holds more than the world and object")
 
+    @property
+    def model(self) -> mujoco.MjModel:
+        """The stand-in model with the arm, shared by the envs of a process."""
+        return self._with_arm.model
+
     def collision_scene(self, placed: PlacedObject) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The stand-in with the arm, ``placed`` on the table, for the arm's collision checks."""
         return self._with_arm.model, self._with_arm.place(placed)
@@ -83,25 +87,6 @@ class StandIn:
         self._placed: PlacedObject | None = None
         self.nbody = self.model.nbody - 1 if with_arm else 0
         self.ngeom = self.model.ngeom - 1 if with_arm else 0
-
-    def __deepcopy__(self, memo: dict) -> StandIn:
-        """A copy posed as this one, sharing the model as the process's envs do, in new data:
-        a copied MjData is resident in full (about 1 MiB), a new one only where it is used."""
-        clone = copy.copy(self)
-        memo[id(self)] = clone
-        data = memo.get(id(self.data))
-        if data is None:
-            data = memo[id(self.data)] = mujoco.MjData(self.model)
-            what = mujoco.mjtState.mjSTATE_INTEGRATION
-            state = np.empty(mujoco.mj_stateSize(self.model, what))
-            mujoco.mj_getState(self.model, self.data, state, what)
-            mujoco.mj_setState(self.model, data, state, what)
-            mujoco.mj_kinematics(self.model, data)
-        clone.data = data
-        memo.setdefault(id(self.model), self.model)
-        clone._stage = copy.deepcopy(self._stage, memo)
-        clone._placed = copy.deepcopy(self._placed, memo)
-        return clone
 
     def place(self, placed: PlacedObject) -> mujoco.MjData:
         """The data with ``placed`` on the table, as the live object is."""

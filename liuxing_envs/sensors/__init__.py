@@ -1,0 +1,1 @@
+"""Sensors of the suite's envs: depth capture and fusion pipelines."""

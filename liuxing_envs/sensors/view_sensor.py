@@ -1,0 +1,122 @@
+"""ViewPlanning's sensor pipeline: a depth image from the wrist camera, back-projected to
+world points (less the arm's own), cropped to the workspace, fused into a voxel map, rays
+carved through a free-space grid, and the arrays the observation shows of them."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+
+from liuxing_envs.perception.free_space import FreeSpaceGrid
+from liuxing_envs.perception.fusion import VoxelMap
+from liuxing_envs.perception.pointcloud import crop_points
+from liuxing_envs.perception.reconstruction import Reconstruction, reconstruct
+from liuxing_envs.sim.object_stage import PlacedObject
+from liuxing_envs.sim.objects import surface_samples
+from liuxing_envs.sim.view_scene import WORKSPACE_LOWER, WORKSPACE_UPPER, ViewScene
+
+#: Returns this close to one of the arm's own geoms are the arm (with ``filter_arm_points``):
+#: exact returns lie on its surface, GL's tessellation puts them up to 0.34 mm off it.
+ARM_FILTER_MARGIN = 0.003  # m
+#: Ground-truth surface samples for reconstruction metrics (about 4 * area / τ² are needed).
+METRIC_SAMPLES = 100_000
+
+
+class ViewSensor:
+    """The episode's fused view of the scene: the latest image, the fused map, the carved
+    free space and where each image was taken from. The scene is passed to each call, so
+    this holds only what a copy of the env must carry."""
+
+    def __init__(self, sensor, fusion, resolution: int) -> None:
+        self.filter_arm_points = bool(sensor.filter_arm_points)
+        self.depth_obs_range = float(sensor.depth_obs_range)
+        self.noise_enabled = sensor.depth_noise is not None and sensor.depth_noise.enabled
+        self.map_grid = fusion.map_grid
+        self.map_extent = float(fusion.map_extent)
+        lower = np.array(WORKSPACE_LOWER, dtype=float)
+        lower[2] = float(fusion.table_crop_height)
+        #: The world box fused points must lie in: above the table top, over the table.
+        self.crop = (lower, np.array(WORKSPACE_UPPER, dtype=float))
+        self.map = VoxelMap(fusion.map_voxel_size, *self.crop)
+        self.free_space = FreeSpaceGrid(self.map_grid) if fusion.observe_free_space else None
+        self.depth = np.zeros((resolution, resolution), dtype=np.float32)
+        self.hits = np.zeros((0, 3))  # world points of the latest image, uncropped
+        self.camera_locations: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        self.map.reset()
+        self.camera_locations = []
+
+    def capture(self, scene: ViewScene, rng: np.random.Generator) -> np.ndarray:
+        """Render depth at the current pose, fuse it, and return the new cropped points."""
+        self.depth = scene.render_depth(rng if self.noise_enabled else None)
+        self.hits = self.world_points(scene, self.depth)
+        points = crop_points(self.hits, *self.crop)
+        self.map.fuse(points)
+        self.camera_locations.append(scene.camera.pose(scene.data)[0])
+        return points
+
+    def preview_points(self, scene: ViewScene) -> np.ndarray:
+        """The cropped world points of a depth image at the live state, not fused; noise, if
+        any, from a generator of its own, so the episode's noise stream is left untouched."""
+        rng = np.random.default_rng(0) if self.noise_enabled else None
+        return crop_points(self.world_points(scene, scene.render_depth(rng)), *self.crop)
+
+    def world_points(self, scene: ViewScene, depth: np.ndarray) -> np.ndarray:
+        """World points of the image's returns at the live state, less those on the arm's
+        own links with ``filter_arm_points`` (the depth observation keeps them: the camera
+        does see the arm)."""
+        camera = scene.camera
+        if self.filter_arm_points:
+            on_arm = camera.pixels_on_geoms(
+                depth, scene.data, scene.arm.geom_ids, ARM_FILTER_MARGIN
+            )
+            if on_arm.any():
+                depth = np.where(on_arm, 0.0, depth).astype(depth.dtype)
+        return camera.points_world(depth, scene.data)
+
+    def reconstruct(self, mesh, placed: PlacedObject, tau_fraction: float, save_dir=None,
+                    **kwargs) -> tuple[Reconstruction, dict]:  # fmt: skip
+        """The fused cloud meshed (:func:`liuxing_envs.perception.reconstruction.reconstruct`
+        takes ``kwargs``) and scored against dense samples of the placed ``mesh``'s whole
+        surface with τ = ``tau_fraction`` × its bounding-box diagonal."""
+        record = reconstruct(
+            self.map.points(), camera_locations=np.array(self.camera_locations), **kwargs
+        )
+        diagonal = placed.scale * mesh.diagonal
+        # Dense ground truth: precision is only meaningful with samples much closer than τ.
+        surface, _ = surface_samples(mesh, METRIC_SAMPLES, 0)
+        metrics = record.metrics(placed.to_world(placed.scale * surface), tau_fraction * diagonal)
+        if save_dir is not None:
+            record.save(save_dir)
+        return record, metrics
+
+    def start_free_space(self, center: np.ndarray) -> None:
+        if self.free_space is not None:
+            self.free_space.reset(center, self.map_extent)
+
+    def carve_free_space(self) -> None:
+        """Mark the cells the latest image's rays crossed (needs the episode's centre)."""
+        if self.free_space is not None:
+            self.free_space.carve(self.camera_locations[-1], self.hits)
+
+    def observation_spaces(self) -> dict[str, spaces.Box]:
+        side, cells = self.depth.shape[0], self.map_grid**3
+        found = {
+            "depth": spaces.Box(0, 255, (1, side, side), dtype=np.uint8),
+            "map": spaces.Box(0.0, 1.0, (cells,), dtype=np.float32),
+        }
+        if self.free_space is not None:
+            found["free_space"] = spaces.Box(0.0, 1.0, (cells,), dtype=np.float32)
+        return found
+
+    def observation(self, center: np.ndarray) -> dict[str, np.ndarray]:
+        """The depth image as uint8, the fused map's occupancy about ``center`` and, when
+        observed, the free space."""
+        scaled = np.clip(self.depth / self.depth_obs_range, 0.0, 1.0)
+        depth = np.round(255 * scaled).astype(np.uint8)
+        occupied = self.map.occupancy_grid(center, self.map_extent, self.map_grid, dtype=np.float32)
+        obs = {"depth": depth[None], "map": occupied.flatten()}
+        if self.free_space is not None:
+            obs["free_space"] = self.free_space.free(occupied).astype(np.float32).ravel()
+        return obs

@@ -1,0 +1,1 @@
+"""Task objects: reward terms, success and episode statistics."""
