@@ -4,7 +4,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from liuxing_envs.sim.arm import JOINT_LEVER_ARMS, Arm, JointPath, _subtree
+from liuxing_envs.sim.arm import JOINT_LEVER_ARMS, Arm, JointPath
+from liuxing_envs.sim.arm_model import subtree
 from liuxing_envs.sim.gripper import attach_gripper
 from liuxing_envs.sim.kinematics import flange_pose_in_base
 from liuxing_envs.sim.scene import (
@@ -187,7 +188,7 @@ def test_joint_lever_arms_bound_the_arm_with_either_tool(tool):
     joints = [model.joint(name).id for name in ARM_JOINT_NAMES]
     solid = (model.geom_contype | model.geom_conaffinity) > 0
     beyond = [
-        np.flatnonzero(np.isin(model.geom_bodyid, _subtree(model, model.jnt_bodyid[j])) & solid)
+        np.flatnonzero(np.isin(model.geom_bodyid, subtree(model, model.jnt_bodyid[j])) & solid)
         for j in joints
     ]
     shapes = {g: geom_surface_points(model, g) for g in np.unique(np.concatenate(beyond))}
@@ -412,8 +413,8 @@ def test_the_ik_of_one_pose_orders_its_solutions_as_the_batch_does(sim):
         pose = flange_pose_in_base(q)
         reference = q + rng.normal(scale=0.5, size=6) + 2 * np.pi * rng.integers(-1, 2, size=6)
         solutions, valid = ur_ik(pose)
-        expected = arm._nearest_first(solutions[valid], reference)
-        got = arm._nearest_first_of_few(solutions_of_one(pose), reference)
+        expected = arm.ik.nearest_first(solutions[valid], reference)
+        got = arm.ik.nearest_first_of_few(solutions_of_one(pose), reference)
         assert len(got) == len(expected)
         dropped += int(valid.sum()) - len(got)
         if len(got):

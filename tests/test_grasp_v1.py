@@ -119,7 +119,7 @@ def test_the_spec_argument_table_is_the_settings():
         assert row["doc"] and "|" not in row["doc"], f"{row['name']}: no meaning, or a stray |"
     for section in ("Description", "Action space", "Observation space", "Rewards",
                     "Starting state", "Episode end", "Arguments", "Version history"):  # fmt: skip
-        assert f"**{section}.**" in doc
+        assert f"## {section}\n" in doc
     for name in instruments.INSTRUMENT_SETS["all"]:  # the instrument sets are named
         assert name in doc
 

@@ -73,7 +73,8 @@ def observation_space(obs_mode: str, resolution: int) -> spaces.Dict:
 class InstrumentGraspEnv(LiuxingEnv):
     """Pick a surgical instrument off a tray without squeezing or striking it too hard.
 
-    **Description.** A 6-DoF arm (UR5e kinematics) carries a parallel-jaw gripper with
+    ## Description
+    A 6-DoF arm (UR5e kinematics) carries a parallel-jaw gripper with
     touch-sensing pads and a wrist depth/RGB camera. One instrument lies on a tray in front of
     it; the policy grasps it by friction alone (nothing welds it), lifts it by
     ``target_height`` and holds it for ``hold_time``, keeping each pad's force under
@@ -84,7 +85,8 @@ class InstrumentGraspEnv(LiuxingEnv):
     (``liuxing_envs.control``), the approach guard and force monitor (``liuxing_envs.safety``),
     the task (``liuxing_envs.tasks.instrument_grasp_task``), the world (``sim/grasp_world.py``).
 
-    **Action space.** ``Box(-1, 1)``, float32; out-of-range values are clipped, NaN/inf
+    ## Action space
+    ``Box(-1, 1)``, float32; out-of-range values are clipped, NaN/inf
     raise ``ValueError``.
 
     ===  =================  ===================================================================
@@ -114,7 +116,8 @@ class InstrumentGraspEnv(LiuxingEnv):
     when the env is made. The guard reads the instrument's geometry from the simulator
     (privileged, as the ``instrument`` observation is).
 
-    **Observation space.** ``Dict`` (float32 unless noted), for SB3's ``MultiInputPolicy``:
+    ## Observation space
+    ``Dict`` (float32 unless noted), for SB3's ``MultiInputPolicy``:
 
     ==============  ==========  ===============================================================
     key             shape       content
@@ -133,7 +136,8 @@ class InstrumentGraspEnv(LiuxingEnv):
     ``rgb``         (3, H, W)   ``"rgbd"`` only: wrist colour image, uint8, channel-first
     ==============  ==========  ===============================================================
 
-    **Rewards.** The sum of these terms, each in ``info``; peaks are over the control step,
+    ## Rewards
+    The sum of these terms, each in ``info``; peaks are over the control step,
     sampled every 5 physics steps:
 
     - ``reward_reach`` = 1 - tanh(``reach_sharpness`` d), d the tool centre's distance to the
@@ -160,7 +164,8 @@ class InstrumentGraspEnv(LiuxingEnv):
     shortened the arm's move or a finger's target), ``hard_limit_exceeded``, ``grasped``,
     ``instrument`` and ``sim_unstable``.
 
-    **Starting state.** A random instrument of ``instrument_set`` (or ``instruments``), level
+    ## Starting state
+    A random instrument of ``instrument_set`` (or ``instruments``), level
     on the tray at a random position and yaw (redrawn until it lies 1 cm inside the rim), its
     mass and contact friction optionally scaled by factors drawn from ``mass_range`` and
     ``friction_range``. The arm starts in a ready pose, the wrist camera 0.45 m above the tray
@@ -170,12 +175,14 @@ class InstrumentGraspEnv(LiuxingEnv):
     and opened to the handle's width plus ``jaw_clearance`` (m); a start that would overlap
     the instrument or the tray is raised in 1 mm steps until it touches nothing.
 
-    **Episode end.** Terminated at a protective stop (``info["hard_limit_exceeded"]``) and,
+    ## Episode end
+    Terminated at a protective stop (``info["hard_limit_exceeded"]``) and,
     with ``terminate_on_success``, at success. Truncated after ``episode_steps`` control steps
     (no registered time limit), and at once when the physics diverges (reward 0,
     ``info["sim_unstable"]``, a finite observation; the next ``reset()`` starts clean).
 
-    **Arguments.** ``render_mode`` (``"rgb_array"``: the overview camera, pads shaded white to
+    ## Arguments
+    ``render_mode`` (``"rgb_array"``: the overview camera, pads shaded white to
     red with their force, ``metadata["render_fps"]`` the control rate) and these settings,
     with v1's defaults (from :class:`InstrumentGraspSettings`; the colour image,
     ``depth_backend="gl"`` and ``render_mode`` need OpenGL). A setting of one mode given with
@@ -183,7 +190,7 @@ class InstrumentGraspEnv(LiuxingEnv):
 
     {arguments}
 
-    **Version history.**
+    ## Version history
 
     - v1: the shipped grasp policy's task as the defaults (force-commanded gripper at 3 N,
       compliant arm with even servo damping, finer steps, the guarded approach, stiffer force

@@ -1,0 +1,63 @@
+"""Lookups of the arm in a compiled scene, shared by :class:`~liuxing_envs.sim.arm.Arm` and its
+parts: ids by name, the arm's joint addresses and geoms, and the checks of joint arguments."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from liuxing_envs.sim.scene import ARM_BASE_BODY, ARM_JOINT_NAMES
+
+
+def require_id(model: mujoco.MjModel, obj: mujoco.mjtObj, name: str) -> int:
+    idx = mujoco.mj_name2id(model, obj, name)
+    if idx < 0:
+        kind = obj.name.removeprefix("mjOBJ_").lower()
+        raise ValueError(f"the model has no {kind} named {name!r}; is it a liuxing_envs scene?")
+    return idx
+
+
+def arm_joint_ids(model: mujoco.MjModel) -> np.ndarray:
+    return np.array([require_id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in ARM_JOINT_NAMES])
+
+
+def qpos_writer(addresses: np.ndarray) -> slice | np.ndarray:
+    """What to index ``qpos`` with to write the arm's joints: a slice when they are
+    contiguous. Writing a slice costs a fifth of a fancy-index write, and the planning loop
+    sets the joints dozens of times per path."""
+    first = int(addresses[0])
+    contiguous = np.array_equal(addresses, np.arange(first, first + len(addresses)))
+    return slice(first, first + len(addresses)) if contiguous else addresses.copy()
+
+
+def arm_geom_mask(model: mujoco.MjModel) -> np.ndarray:
+    base = require_id(model, mujoco.mjtObj.mjOBJ_BODY, ARM_BASE_BODY)
+    return np.isin(model.geom_bodyid, subtree(model, base))
+
+
+def subtree(model: mujoco.MjModel, root: int) -> np.ndarray:
+    """Ids of ``root`` and every body below it."""
+    inside = np.zeros(model.nbody, dtype=bool)
+    inside[root] = True
+    for body in range(root + 1, model.nbody):  # parents always precede children
+        inside[body] = inside[model.body_parentid[body]]
+    return np.flatnonzero(inside)
+
+
+def finite_qpos(qpos, name: str = "qpos") -> np.ndarray:
+    """``qpos`` as 6 finite joint angles, or a ValueError naming it (a NaN configuration
+    is in collision with nothing, so a check of it would pass)."""
+    try:
+        angles = np.asarray(qpos, dtype=float)
+    except (TypeError, ValueError):
+        angles = None
+    if angles is None or angles.shape != (6,) or not np.isfinite(angles).all():
+        raise ValueError(f"{name} must be 6 finite joint angles, got {qpos!r}")
+    return angles
+
+
+def homogeneous(position, rotation) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, :3] = np.asarray(rotation).reshape(3, 3)
+    pose[:3, 3] = position
+    return pose
