@@ -111,6 +111,11 @@ class Arm:
         self.ik = ArmIK(self, self.collision_checks)
         self.motion = ArmMotion(self, self.collision_checks)
 
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        for part in (self.collision_checks, self.ik, self.motion):
+            part.link(self)
+
     # ------------------------------------------------------------------ state
     @property
     def qpos_indices(self) -> np.ndarray:

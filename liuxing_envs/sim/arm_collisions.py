@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from liuxing_envs.sim.arm_model import (
+    ArmPart,
     arm_geom_mask,
     arm_joint_ids,
     finite_qpos,
@@ -95,7 +96,7 @@ class JointPath:
         return float(sum(np.linalg.norm(b - a) for a, b in zip(points, points[1:], strict=False)))
 
 
-class ArmCollisions:
+class ArmCollisions(ArmPart):
     """The collision checks of an :class:`~liuxing_envs.sim.arm.Arm`, in its scratch data or
     in a collision scene chosen with :meth:`use_collision_scene`.
 
@@ -103,7 +104,7 @@ class ArmCollisions:
     """
 
     def __init__(self, arm: Arm, is_arm_geom: np.ndarray) -> None:
-        self._arm = arm
+        super().__init__(arm)
         #: The scene of the live model, posed in the arm's scratch data.
         self.live_scene = CollisionScene(arm.model, arm.scratch, arm.qpos_at, is_arm_geom)
         #: The scene the checks run in now.

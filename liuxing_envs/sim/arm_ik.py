@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
-from liuxing_envs.sim.arm_model import finite_qpos, homogeneous, require_id, subtree
+from liuxing_envs.sim.arm_model import ArmPart, finite_qpos, homogeneous, require_id, subtree
 from liuxing_envs.sim.scene import (
     ARM_BASE_BODY,
     FLANGE_SITE,
@@ -70,7 +70,7 @@ class IKResult:
     in_collision: bool
 
 
-class ArmIK:
+class ArmIK(ArmPart):
     """The IK of an :class:`~liuxing_envs.sim.arm.Arm`, its collision checks by ``collisions``.
 
     The random restarts of the DLS solver are seeded with the arm's ``ik_seed``, so the same
@@ -78,7 +78,7 @@ class ArmIK:
     """
 
     def __init__(self, arm: Arm, collisions: ArmCollisions) -> None:
-        self._arm = arm
+        super().__init__(arm)
         self._collisions = collisions
         model = arm.model
         self._flange_in_site: dict[int, np.ndarray | None] = {}

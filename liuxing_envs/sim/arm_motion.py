@@ -23,6 +23,7 @@ import mujoco
 import numpy as np
 
 from liuxing_envs.sim.arm_collisions import Contact, JointPath, arm_contacts
+from liuxing_envs.sim.arm_model import ArmPart
 from liuxing_envs.sim.stability import diverged_since, divergence_count
 from liuxing_envs.validation import require_number
 
@@ -63,12 +64,12 @@ class MotionResult:
     unstable: bool = False
 
 
-class ArmMotion:
+class ArmMotion(ArmPart):
     """Moves an :class:`~liuxing_envs.sim.arm.Arm` (its live data), kinematically or under
     physics, stopping at contacts found by ``collisions``."""
 
     def __init__(self, arm: Arm, collisions: ArmCollisions) -> None:
-        self._arm = arm
+        super().__init__(arm)
         self._collisions = collisions
 
     def move_to(
