@@ -46,8 +46,10 @@ bench: $(VENV)/.installed
 demo: $(VENV)/.installed
 	$(BIN)/python -m liuxing_envs.demo --out outputs/demo
 
+# One test process per core (pytest-xdist); TEST_WORKERS=0 runs them all in this process.
+TEST_WORKERS ?= auto
 test: $(VENV)/.installed
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache

@@ -11,7 +11,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
+
+from liuxing_envs.open3d_import import o3d
 
 #: Coverage levels whose "views needed" the reports give.
 COVERAGE_LEVELS = (0.90, 0.95)

@@ -25,8 +25,8 @@ if __name__ == "__main__":  # before mujoco is imported: it reads MUJOCO_GL once
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
-import open3d as o3d  # noqa: E402
 
+from liuxing_envs.open3d_import import o3d  # noqa: E402
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder  # noqa: E402
 from liuxing_envs.perception.pointcloud import crop_points  # noqa: E402
 from liuxing_envs.sim.arm import MOTION_MODES, Arm  # noqa: E402

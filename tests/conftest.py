@@ -10,8 +10,11 @@ import tempfile
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 # The tests compute the ground truth they check rather than read it from a disk cache
-# filled elsewhere (the user's, or the one $LIUXING_ENVS_CACHE names); the CLIs they start
-# in subprocesses share this session's folder.
-_session_cache = tempfile.mkdtemp(prefix="liuxing_envs_test_cache_")
-os.environ["LIUXING_ENVS_CACHE"] = _session_cache
-atexit.register(shutil.rmtree, _session_cache, ignore_errors=True)
+# filled elsewhere (the user's, or the one $LIUXING_ENVS_CACHE names). The CLIs they start in
+# subprocesses, and pytest-xdist's workers (which inherit the environment of the process that
+# starts them), share this session's folder.
+_SESSION_CACHE_VARIABLE = "LIUXING_ENVS_TEST_SESSION_CACHE"
+if _SESSION_CACHE_VARIABLE not in os.environ:
+    os.environ[_SESSION_CACHE_VARIABLE] = tempfile.mkdtemp(prefix="liuxing_envs_test_cache_")
+    atexit.register(shutil.rmtree, os.environ[_SESSION_CACHE_VARIABLE], ignore_errors=True)
+os.environ["LIUXING_ENVS_CACHE"] = os.environ[_SESSION_CACHE_VARIABLE]

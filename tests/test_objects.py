@@ -525,6 +525,8 @@ def test_a_forked_child_refuses_the_observable_surface_instead_of_hanging(monkey
     naming spawn. The parent still computes it."""
     # As when OMP_NUM_THREADS was not 1 at import (with it at 1 nothing would hang).
     monkeypatch.setattr(forking, "_single_openmp_thread", False)
+    import open3d  # noqa: F401 (the package imports it only when first used)
+
     mesh = _box_mesh()
     points, normals = surface_samples(mesh, 256, seed=0)
     outcome = outcome_in_forked_child(_observable_mask_in_a_forked_child, mesh, points, normals)

@@ -38,10 +38,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
 from scipy.spatial import cKDTree
 
 from liuxing_envs.forking import check_open3d_not_forked
+from liuxing_envs.open3d_import import o3d
 from liuxing_envs.perception.pointcloud import as_points
 from liuxing_envs.validation import require_int, require_number
 
@@ -126,16 +126,16 @@ def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
 
 #: The per-element arrays of open3d's geometries, with the vector type each is held in.
 _CLOUD_ARRAYS = {
-    "points": o3d.utility.Vector3dVector,
-    "normals": o3d.utility.Vector3dVector,
-    "colors": o3d.utility.Vector3dVector,
+    "points": "Vector3dVector",
+    "normals": "Vector3dVector",
+    "colors": "Vector3dVector",
 }
 _MESH_ARRAYS = {
-    "vertices": o3d.utility.Vector3dVector,
-    "triangles": o3d.utility.Vector3iVector,
-    "vertex_normals": o3d.utility.Vector3dVector,
-    "vertex_colors": o3d.utility.Vector3dVector,
-    "triangle_normals": o3d.utility.Vector3dVector,
+    "vertices": "Vector3dVector",
+    "triangles": "Vector3iVector",
+    "vertex_normals": "Vector3dVector",
+    "vertex_colors": "Vector3dVector",
+    "triangle_normals": "Vector3dVector",
 }
 
 
@@ -146,7 +146,8 @@ def _geometry_arrays(geometry, names: dict) -> dict[str, np.ndarray]:
 def _geometry_from_arrays(geometry, arrays: dict[str, np.ndarray], names: dict):
     for name, values in arrays.items():
         if len(values):
-            setattr(geometry, name, names[name](np.ascontiguousarray(values)))
+            vector_type = getattr(o3d.utility, names[name])
+            setattr(geometry, name, vector_type(np.ascontiguousarray(values)))
     return geometry
 
 

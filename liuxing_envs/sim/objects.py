@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
-import open3d as o3d
 from scipy.interpolate import PchipInterpolator
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -35,6 +34,7 @@ from scipy.spatial import ConvexHull
 
 from liuxing_envs.disk_cache import cache_key, load_array, store_array
 from liuxing_envs.forking import check_open3d_not_forked
+from liuxing_envs.open3d_import import o3d, open3d_version
 
 __all__ = [
     "DEFAULT_OBSERVATION_AZIMUTH_COUNT",
@@ -1099,6 +1099,35 @@ def surface_samples(
 def _surface_samples(
     mesh: ObjectMesh, count: int, seed: int, interior_tolerance: float
 ) -> tuple[np.ndarray, np.ndarray]:
+    if mesh.part_ids.max() == 0 or _SOURCE_DIGEST is None:
+        points, normals = _draw_surface_samples(mesh, count, seed, interior_tolerance)
+    else:
+        # Through the disk cache: a mesh of several parts needs open3d's inside/outside
+        # queries, and importing open3d costs a process seconds that steps never need.
+        key = cache_key(
+            _SOURCE_DIGEST,
+            np.__version__,
+            open3d_version(),
+            mesh.vertices,
+            mesh.faces,
+            count,
+            seed,
+            interior_tolerance,
+        )
+        stored = load_array("surface", key, (count, 6), np.float64)
+        if stored is None:
+            points, normals = _draw_surface_samples(mesh, count, seed, interior_tolerance)
+            store_array("surface", key, np.hstack([points, normals]))
+        else:
+            points, normals = stored[:, :3].copy(), stored[:, 3:].copy()
+    points.setflags(write=False)
+    normals.setflags(write=False)
+    return points, normals
+
+
+def _draw_surface_samples(
+    mesh: ObjectMesh, count: int, seed: int, interior_tolerance: float
+) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     cumulative = np.cumsum(mesh.face_areas)
     if cumulative[-1] <= 0:
@@ -1123,11 +1152,7 @@ def _surface_samples(
             raise ValueError(f"{mesh.name}: almost all of the surface lies inside other parts")
         # Size the next batch from the observed acceptance rate, with margin.
         batch = int(np.ceil((count - kept) * drawn / max(kept, 1) * 1.1)) + 16
-    points = np.concatenate(points)[:count]
-    normals = np.concatenate(normals)[:count]
-    points.setflags(write=False)
-    normals.setflags(write=False)
-    return points, normals
+    return np.concatenate(points)[:count], np.concatenate(normals)[:count]
 
 
 def _closed_part_scenes(mesh: ObjectMesh) -> list[tuple[int, o3d.t.geometry.RaycastingScene]]:
@@ -1160,6 +1185,8 @@ def _closed_part_scenes(mesh: ObjectMesh) -> list[tuple[int, o3d.t.geometry.Rayc
 def _exposed(points: np.ndarray, parts: np.ndarray, containers, tolerance: float) -> np.ndarray:
     """Which points (on faces of ``parts``) lie outside every other closed part."""
     exposed = np.ones(len(points), dtype=bool)
+    if not containers:
+        return exposed
     query = o3d.core.Tensor(points.astype(np.float32))
     for part, scene in containers:
         distance = scene.compute_signed_distance(query, nsamples=DEFAULT_INSIDE_VOTES).numpy()
@@ -1360,7 +1387,7 @@ def _stored_observable_mask(
     key = cache_key(
         _SOURCE_DIGEST,
         np.__version__,
-        o3d.__version__,
+        open3d_version(),
         mesh.vertices,
         mesh.faces,
         points,
