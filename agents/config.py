@@ -371,6 +371,7 @@ def load_yaml(path: str | Path) -> dict:
 def default_hyperparams(algo: str, env_id: str, config_file: str | Path | None = None) -> dict:
     """The entry for ``env_id`` in ``config_file`` (default: ``agents/hyperparams/<algo>.yml``),
     or else for its task's benchmark id (``InstrumentGraspRGBD-v1`` -> ``InstrumentGrasp-v1``).
+    A deprecated id (``InstrumentGrasp-v0``) needs an entry of its own.
 
     A custom file may hold a single entry without an env-id key; it is then used as is.
     """
@@ -379,13 +380,22 @@ def default_hyperparams(algo: str, env_id: str, config_file: str | Path | None =
     content = load_yaml(path)
     from liuxing_envs.registration import BY_ID, benchmark_id, family
 
-    # A variant or an older version of a task trains with its benchmark id's entry unless
-    # the file has one of its own.
-    fallback = benchmark_id(family(env_id)) if env_id in BY_ID else env_id
+    # A variant trains with its benchmark id's entry unless the file has one of its own. A
+    # deprecated version does not: the benchmark id's entry is tuned for that id's defaults,
+    # which are not the old version's.
+    registration = BY_ID.get(env_id)
+    fallback = (
+        benchmark_id(family(env_id)) if registration and not registration.deprecated else None
+    )
     if env_id in content:
         entry = content[env_id]
     elif fallback in content:
         entry = content[fallback]
+    elif registration and registration.deprecated and benchmark_id(family(env_id)) in content:
+        raise ConfigError(
+            f"{env_id!r} is deprecated and {str(path)!r} has no entry for it: train "
+            f"{benchmark_id(family(env_id))!r}, or give a config file with an entry for {env_id!r}"
+        )
     elif config_file and not any(key in BY_ID for key in content):
         entry = content
     else:

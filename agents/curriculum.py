@@ -1,6 +1,6 @@
-"""Start-state curriculum for InstrumentGrasp-v0: some training episodes begin near the handle.
+"""Start-state curriculum for InstrumentGrasp: some training episodes begin near the handle.
 
-Every episode of InstrumentGrasp-v0 begins with the tool 30 cm above the tray. A learner
+Every episode of InstrumentGrasp begins with the tool 30 cm above the tray. A learner
 finds the handle from there (the reach term leads it), but the grasp itself is millimetre
 work: lower the open jaws across a 10 mm handle to within millimetres of the tray without
 striking the instrument, close, lift. Without help PPO and SAC learned to hover 25-34 mm above

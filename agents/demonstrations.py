@@ -1,6 +1,6 @@
 """Expert demonstrations in an off-policy learner's replay buffer (SAC from demonstrations).
 
-InstrumentGrasp-v0's reward is dense only up to the handle: a grasp pays nothing until both
+InstrumentGrasp's reward is dense only up to the handle: a grasp pays nothing until both
 pads press on it, and a random policy of 5 continuous dimensions essentially never turns the
 jaws across a 10 mm handle, lowers them to within millimetres of the tray and closes them
 below 5 N. Without demonstrations SAC learned to hover at the handle (docs/training_notes.md).

@@ -101,24 +101,22 @@ def task_for(env_id: str) -> Task:
     return TASKS[family(env_id)]
 
 
-#: The env kwarg that sets a task's episode length: the v0 ids' registered time limits must
-#: follow it (the v1 ids end their own episodes).
-EPISODE_LENGTH_KWARGS = {"ViewPlanning": "view_budget", "InstrumentGrasp": "episode_steps"}
-
-
 def make_env(env_id: str, env_kwargs: Mapping | None = None, **make_kwargs):
     """``gym.make`` with the run's env kwargs. Where an id registers a time limit (the v0
     ids: their default episode lengths), a changed ``view_budget`` or ``episode_steps`` moves
     the limit with it."""
     import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
 
     import liuxing_envs  # noqa: F401  (registers the ids)
 
     env_kwargs = dict(env_kwargs or {})
     check_env_kwargs(env_id, env_kwargs)  # a name misspelt in a run's config.yml, say
-    length_kwarg = EPISODE_LENGTH_KWARGS[family(env_id)]
-    if BY_ID[env_id].max_episode_steps is not None and length_kwarg in env_kwargs:
-        make_kwargs.setdefault("max_episode_steps", env_kwargs[length_kwarg])
+    if BY_ID[env_id].max_episode_steps is not None:
+        # The setting that sets the episode's length moves the id's time limit with it.
+        length = load_env_creator(gym.spec(env_id).entry_point).episode_length_setting
+        if length in env_kwargs:
+            make_kwargs.setdefault("max_episode_steps", env_kwargs[length])
     try:
         return gym.make(env_id, **make_kwargs, **env_kwargs)
     except (TypeError, ValueError, FileNotFoundError) as error:

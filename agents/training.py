@@ -653,7 +653,7 @@ class PeriodicEvaluation(_Periodic):
         first_seed = config["seed"] + PERIODIC_EVAL_SEED_OFFSET
         self.seeds = range(first_seed, first_seed + config["eval_episodes"])
         self.best = self.best_so_far()
-        self.clock: TrainingClock | None = None  # the run's, set by _learn
+        self.clock: TrainingClock | None = None  # the run's, set by learn_in_run_folder
 
     def best_so_far(self) -> float:
         """The mean return of the best model's evaluation, which the next one must beat to
@@ -811,7 +811,9 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
             if isinstance(error, KeyboardInterrupt):
                 print("\ninterrupted before training began: nothing was saved", file=sys.stderr)
             raise
-        return _learn(model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation)
+        return learn_in_run_folder(
+            model, config, run_dir, progress_bar, resuming=False, evaluation=evaluation
+        )
 
 
 def _refuse_a_run_folder(run_dir: Path) -> None:
@@ -1180,7 +1182,7 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
     run_folder.write_config(run_dir, {**config, "resumed_from_steps": steps}, resuming=True)
     # A new stream: the resumed run must not replay the episodes it has already seen.
     model.set_random_seed(resumed_seed(config["seed"], steps))
-    return _learn(
+    return learn_in_run_folder(
         model,
         config,
         run_dir,
@@ -1214,7 +1216,7 @@ def _tensorboard_dir(config: dict, run_dir: Path) -> str | None:
     return str(run_dir / run_folder.TENSORBOARD) if config["tensorboard"] else None
 
 
-def _learn(
+def learn_in_run_folder(
     model,
     config: dict,
     run_dir: Path,
@@ -1223,6 +1225,10 @@ def _learn(
     curriculum: dict | None = None,
     evaluation: PeriodicEvaluation | None = None,
 ) -> dict:
+    """Train ``model`` to ``config["n_timesteps"]`` in the run folder ``run_dir`` (already
+    set up): periodic checkpoints and evaluations as ``config`` sets them, and a checkpoint
+    to resume from when a signal stops the run or training fails (a lost worker, say). Returns
+    the final comparison."""
     boundary, stopper = RolloutBoundary(), StopWhenRequested()
     callbacks = [boundary, stopper]
     level = level_callback(config.get("start_curriculum"), curriculum)

@@ -41,7 +41,7 @@ from liuxing_envs.sim.stability import DIVERGENCE_WARNINGS  # noqa: E402
 #: The benchmark tasks, not their variants (the RGB-D grasp variant's memory grows 40-50% in
 #: 400 steps when a second instrument is first rendered, which a soak of this length does
 #: not tell from a leak).
-ENV_IDS = tuple(r.env_id for r in REGISTRATIONS if r.env_id.endswith("-v1") and not r.kwargs)
+ENV_IDS = tuple(r.env_id for r in REGISTRATIONS if not r.deprecated and not r.kwargs)
 DEFAULT_STEPS = 100_000
 DEFAULT_ENVS = 200
 MAX_GROWTH = 0.05

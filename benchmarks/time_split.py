@@ -70,7 +70,7 @@ def _instrument_grasp(env, timer: PhaseTimer) -> None:
     from liuxing_envs.sim.gripper import Gripper
 
     timer.wrap(mujoco, "mj_step", "physics (mj_step)")
-    timer.wrap(env, "_apply_arm_action", "controller (IK)")
+    timer.wrap(env.arm_controller, "apply", "controller (IK)")
     timer.wrap(Gripper, "fingertip_forces", "force sensing")
     timer.wrap(grasp_world.GraspWorld, "impact_force", "force sensing")
     timer.wrap(DepthCamera, "render", "depth rendering")

@@ -17,43 +17,36 @@ from typing import Any
 
 @dataclass(frozen=True)
 class Registration:
-    """One registered id: its env class, the settings it changes from the class's defaults,
-    and a registered time limit (None: the env ends its own episodes)."""
+    """One registered id: its task family, env class, the settings it changes from the
+    class's defaults, and a registered time limit (None: the env ends its own episodes)."""
 
     env_id: str
+    family: str
     entry_point: str
     kwargs: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     max_episode_steps: int | None = None
     deprecated: bool = False
 
-    @property
-    def family(self) -> str:
-        """The task family: the id without its variant and version (``ViewPlanning``)."""
-        return FAMILY_OF[self.entry_point]
+
+def _view_planning(env_id: str, **kwargs: Any) -> Registration:
+    return Registration(env_id, "ViewPlanning", VIEW_PLANNING, MappingProxyType(kwargs))
 
 
-def _variant(env_id: str, entry_point: str, **kwargs: Any) -> Registration:
-    return Registration(env_id, entry_point, MappingProxyType(kwargs))
+def _instrument_grasp(env_id: str, **kwargs: Any) -> Registration:
+    return Registration(env_id, "InstrumentGrasp", INSTRUMENT_GRASP, MappingProxyType(kwargs))
 
 
 VIEW_PLANNING = "liuxing_envs.envs.view_planning:ViewPlanningEnv"
 INSTRUMENT_GRASP = "liuxing_envs.envs.instrument_grasp:InstrumentGraspEnv"
-FAMILY_OF = {
-    VIEW_PLANNING: "ViewPlanning",
-    "liuxing_envs.envs.view_planning:ViewPlanningV0Env": "ViewPlanning",
-    INSTRUMENT_GRASP: "InstrumentGrasp",
-    "liuxing_envs.envs.instrument_grasp:InstrumentGraspV0Env": "InstrumentGrasp",
-}
 
 REGISTRATIONS = (
-    _variant("ViewPlanning-v1", VIEW_PLANNING),
-    _variant("ViewPlanningDiscrete-v1", VIEW_PLANNING, action_mode="discrete"),
-    _variant("InstrumentGrasp-v1", INSTRUMENT_GRASP),
-    _variant("InstrumentGraspDepth-v1", INSTRUMENT_GRASP, obs_mode="depth"),
-    _variant("InstrumentGraspRGBD-v1", INSTRUMENT_GRASP, obs_mode="rgbd"),
-    _variant(
+    _view_planning("ViewPlanning-v1"),
+    _view_planning("ViewPlanningDiscrete-v1", action_mode="discrete"),
+    _instrument_grasp("InstrumentGrasp-v1"),
+    _instrument_grasp("InstrumentGraspDepth-v1", obs_mode="depth"),
+    _instrument_grasp("InstrumentGraspRGBD-v1", obs_mode="rgbd"),
+    _instrument_grasp(
         "InstrumentGraspUnguarded-v1",
-        INSTRUMENT_GRASP,
         approach_lead_limit=None,
         approach_lead_slope=0.0,
         approach_guard_fingers=False,
@@ -61,19 +54,20 @@ REGISTRATIONS = (
     # v0: the registered time limits were its episode ends (a view budget of 4, 200 steps).
     Registration(
         "ViewPlanning-v0",
+        "ViewPlanning",
         "liuxing_envs.envs.view_planning:ViewPlanningV0Env",
         max_episode_steps=4,
         deprecated=True,
     ),
     Registration(
         "InstrumentGrasp-v0",
+        "InstrumentGrasp",
         "liuxing_envs.envs.instrument_grasp:InstrumentGraspV0Env",
         max_episode_steps=200,
         deprecated=True,
     ),
 )
 BY_ID = {registration.env_id: registration for registration in REGISTRATIONS}
-FAMILIES = ("ViewPlanning", "InstrumentGrasp")
 
 
 def family(env_id: str) -> str:

@@ -502,3 +502,25 @@ def test_look_at_gives_a_rotation_looking_at_the_target_for_any_up(target, up):
 def test_look_at_refuses_an_up_that_is_no_direction(up):
     with pytest.raises(ValueError, match="up must be a finite non-zero vector"):
         look_at(np.zeros(3), (1.0, 0.0, 0.0), up)
+
+
+@pytest.mark.parametrize("how", ["copy", "deepcopy", "pickle"])
+def test_an_arm_and_its_copies_each_solve_after_the_other_is_gone(sim, how):
+    """The arm's parts refer back to it weakly: a shallow copy relinked the shared parts to
+    itself, and the original's IK failed once the copy was dropped."""
+    import copy
+    import gc
+    import pickle
+
+    _, _, arm = sim
+    eye, rotation = hemisphere_views()[0]
+    expected = arm.solve_ik(eye, rotation).qpos
+    duplicate = {
+        "copy": copy.copy,
+        "deepcopy": copy.deepcopy,
+        "pickle": lambda a: pickle.loads(pickle.dumps(a)),
+    }[how](arm)
+    np.testing.assert_array_equal(duplicate.solve_ik(eye, rotation).qpos, expected)
+    del duplicate
+    gc.collect()
+    np.testing.assert_array_equal(arm.solve_ik(eye, rotation).qpos, expected)

@@ -16,7 +16,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from liuxing_envs import forking
 from liuxing_envs.perception import (
     camera_rays,
     crop_points,
@@ -103,16 +102,16 @@ class _CameraPool:
     """One camera per (model, name, backend), closed at the end of the module."""
 
     def __init__(self) -> None:
-        self._cameras: dict[tuple[int, str, str], DepthCamera] = {}
+        self.cameras: dict[tuple[int, str, str], DepthCamera] = {}
 
     def get(self, model: mujoco.MjModel, name: str, backend: str) -> DepthCamera:
         key = (id(model), name, backend)
-        if key not in self._cameras:
-            self._cameras[key] = DepthCamera(model, name, backend=backend)
-        return self._cameras[key]
+        if key not in self.cameras:
+            self.cameras[key] = DepthCamera(model, name, backend=backend)
+        return self.cameras[key]
 
     def close(self) -> None:
-        for camera in self._cameras.values():
+        for camera in self.cameras.values():
             camera.close()
 
 
@@ -431,19 +430,18 @@ def _tabletop_with_a_free_camera(floor_tilt_deg: float = 0.0) -> mujoco.MjModel:
     return spec.compile()
 
 
-def _image_casting_every_ray(camera: DepthCamera, model, data) -> np.ndarray:
-    backend = camera._require_open()
-    scene = backend._scene
-    backend._scene = lambda model, data: scene(model, data)._replace(shortcut=None)
+def _image_casting_every_ray(camera: DepthCamera, data) -> np.ndarray:
+    backend = camera.active_backend
+    backend.use_table_shortcut = False
     try:
         return camera.render(data)
     finally:
-        del backend._scene
+        backend.use_table_shortcut = True
 
 
 def test_raycast_table_shortcut_gives_the_full_cast_image():
     # The raycast backend answers rays that can only land on the table top in numpy
-    # (_TableShortcut) and casts the rest; the image must be the one casting every ray gives,
+    # (TableShortcut) and casts the rest; the image must be the one casting every ray gives,
     # bit for bit, from anywhere: looking down, past the table's edge, and from below its top.
     model = _tabletop_with_a_free_camera()
     data = mujoco.MjData(model)
@@ -451,10 +449,10 @@ def test_raycast_table_shortcut_gives_the_full_cast_image():
     rig, objects = model.body("rig").mocapid[0], model.body("objects").mocapid[0]
     rng = np.random.default_rng(0)
     with DepthCamera(model, "probe", backend="raycast") as camera:
-        backend = camera._require_open()
-        shortcut = backend._scene(model, data).shortcut
+        shortcut = camera.active_backend.scene_for(model, data).shortcut
         assert shortcut is not None
         assert shortcut.obstacles.size == 3  # the static box and the two movable geoms
+        rays_cam = camera_rays(camera.intrinsics, "unit").reshape(-1, 3)
         answered = 0
         for _ in range(60):
             eye = rng.uniform([-0.4, -0.9, -0.2], [1.3, 0.9, 1.0])
@@ -465,9 +463,9 @@ def test_raycast_table_shortcut_gives_the_full_cast_image():
             mujoco.mj_kinematics(model, data)
             image = camera.render(data)
             position, rotation = camera.pose(data)
-            solved = shortcut.solve(data, position, backend._rays_cam @ rotation.T, 10.0)
-            answered += solved is not None and solved[1].size < 0.8 * backend._nray
-            np.testing.assert_array_equal(image, _image_casting_every_ray(camera, model, data))
+            solved = shortcut.solve(data, position, rays_cam @ rotation.T, 10.0)
+            answered += solved is not None and solved[1].size < 0.8 * len(rays_cam)
+            np.testing.assert_array_equal(image, _image_casting_every_ray(camera, data))
         assert answered >= 20  # the shortcut did the work in many of the views
 
 
@@ -477,10 +475,8 @@ def test_raycast_table_shortcut_stays_off_where_it_would_not_be_exact():
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     with DepthCamera(model, "probe", backend="raycast") as camera:
-        assert camera._require_open()._scene(model, data).shortcut is None
-        np.testing.assert_array_equal(
-            camera.render(data), _image_casting_every_ray(camera, model, data)
-        )
+        assert camera.active_backend.scene_for(model, data).shortcut is None
+        np.testing.assert_array_equal(camera.render(data), _image_casting_every_ray(camera, data))
 
 
 def test_raycast_table_shortcut_with_the_arm_in_the_scene(objects_model):
@@ -496,8 +492,9 @@ def test_raycast_table_shortcut_with_the_arm_in_the_scene(objects_model):
         DepthCamera(model, WRIST_CAMERA, backend="raycast") as wrist,
         DepthCamera(model, "side_view", backend="raycast") as side,
     ):
-        backend = wrist._require_open()
-        shortcut = backend._scene(model, data).shortcut
+        backend = wrist.active_backend
+        shortcut = backend.scene_for(model, data).shortcut
+        rays_cam = camera_rays(wrist.intrinsics, "unit").reshape(-1, 3)
         assert shortcut is not None and shortcut.obstacles.size > 10
         housing = model.geom("camera_housing_geom").id
         assert housing in shortcut.obstacles
@@ -508,20 +505,19 @@ def test_raycast_table_shortcut_with_the_arm_in_the_scene(objects_model):
             data = _data_at(model, qpos)
             for camera in (wrist, side):
                 np.testing.assert_array_equal(
-                    camera.render(data), _image_casting_every_ray(camera, model, data)
+                    camera.render(data), _image_casting_every_ray(camera, data)
                 )
                 position, rotation = camera.pose(data)
-                in_view = backend._frustum.may_reach(
+                in_view = backend.frustum.may_reach(
                     model, data, shortcut.obstacles, position, rotation
                 )
-                solved = shortcut.solve(
-                    data, position, backend._rays_cam @ rotation.T, backend._cutoff, in_view
-                )
-                if solved is not None and solved[1].size < 0.5 * backend._nray:
+                cutoff = backend.frustum.ray_length
+                solved = shortcut.solve(data, position, rays_cam @ rotation.T, cutoff, in_view)
+                if solved is not None and solved[1].size < 0.5 * len(rays_cam):
                     answered += 1
                     answered_with_arm += bool(in_view[movable].any())
             position, rotation = wrist.pose(data)
-            housing_in_view = backend._frustum.may_reach(model, data, [housing], position, rotation)
+            housing_in_view = backend.frustum.may_reach(model, data, [housing], position, rotation)
             assert not housing_in_view[0]
         assert answered >= 20  # most rays were answered in many views
         assert answered_with_arm >= 10  # also with arm links in view
@@ -556,12 +552,12 @@ def test_pixel_window_holds_every_ray_that_meets_the_box():
     # its corners project to (when all of them are in front of the camera). Every pixel ray
     # that the slab test finds meeting the box must lie in that window, for boxes anywhere
     # in or near the field of view, at any orientation, with square and oblong images.
-    from liuxing_envs.sim.camera import _BOX_CORNERS, _PixelGrid, _TableShortcut
+    from liuxing_envs.sim.depth_backends import BOX_CORNERS, PixelGrid, TableShortcut
 
     rng = np.random.default_rng(2)
     tested = narrow = 0
     for intrinsics in (CameraIntrinsics(), CameraIntrinsics(width=48, height=30, fovy_deg=70.0)):
-        grid = _PixelGrid(intrinsics)
+        grid = PixelGrid(intrinsics)
         rays_cam = camera_rays(intrinsics, "unit").reshape(-1, 3)
         for _ in range(400):
             rotation, frame = _random_rotation(rng), _random_rotation(rng)
@@ -570,8 +566,8 @@ def test_pixel_window_holds_every_ray_that_meets_the_box():
             centre = position + rotation @ ahead
             box_centre, half = rng.uniform(-0.02, 0.02, 3), rng.uniform(0.002, 0.1, 3)
             rays = rays_cam @ rotation.T
-            meets = _TableShortcut._meets_box(frame, centre, box_centre, half, position, rays)
-            offsets = (box_centre + _BOX_CORNERS * half) @ frame.T + (centre - position)
+            meets = TableShortcut.meets_box(frame, centre, box_centre, half, position, rays)
+            offsets = (box_centre + BOX_CORNERS * half) @ frame.T + (centre - position)
             corners = offsets @ rotation  # in the camera frame
             window = grid.window(corners)
             if window is None:
@@ -595,7 +591,7 @@ def test_a_geom_touching_the_optical_centre_is_never_culled():
     rng = np.random.default_rng(0)
     housing = [model.geom("housing").id]
     with DepthCamera(model, "probe", backend="raycast") as camera:
-        frustum = camera._require_open()._frustum
+        frustum = camera.active_backend.frustum
         for _ in range(100):
             eye = rng.uniform([0.0, -0.5, 0.3], [0.8, 0.5, 1.0])
             target = rng.uniform([0.0, -0.4, 0.0], [0.8, 0.4, 0.05])
@@ -604,7 +600,7 @@ def test_a_geom_touching_the_optical_centre_is_never_culled():
             position, rotation = camera.pose(data)
             assert frustum.may_reach(model, data, housing, position, rotation)[0]
             np.testing.assert_array_equal(
-                camera.render(data), _image_casting_every_ray(camera, model, data)
+                camera.render(data), _image_casting_every_ray(camera, data)
             )
 
 
@@ -627,7 +623,7 @@ def test_raycast_shortcut_follows_static_geoms_moved_at_run_time():
         model.geom("block").pos[2] = 0.04  # now standing on the table top
         mujoco.mj_kinematics(model, data)
         raised = camera.render(data)
-        np.testing.assert_array_equal(raised, _image_casting_every_ray(camera, model, data))
+        np.testing.assert_array_equal(raised, _image_casting_every_ray(camera, data))
     assert (raised < flat - 0.05).sum() > 50  # the block shows, 8 cm nearer than the table
 
 
@@ -699,7 +695,7 @@ def test_embree_backend_agrees_with_raycast_and_falls_back_where_it_cannot_split
                 np.testing.assert_array_equal(image > 0, expected > 0)
                 np.testing.assert_allclose(image, expected, rtol=0, atol=2e-5)
             seen += not np.array_equal(image, expected)
-        assert embree._require_open()._meshes or share_body
+        assert embree.active_backend.meshes_in_embree or share_body
     assert (seen == 0) if share_body else (seen >= 10)  # the octahedron was in most views
 
 
@@ -830,18 +826,45 @@ def test_a_process_forked_after_an_opengl_context_refuses_gl_instead_of_hanging(
     inherited.close()
 
 
-def test_only_a_child_forked_after_a_context_is_refused_opengl(monkeypatch):
-    # The hook runs at every fork since the package was imported: a child forked before
-    # this process made any context may still make its own.
-    monkeypatch.setattr(forking, "_made_opengl_context", False)
-    monkeypatch.setattr(forking, "_forked_after_opengl", False)
-    monkeypatch.setattr(forking, "_forked_after_open3d", False)  # restored, as the others
-    forking._after_fork_in_child()
-    forking.check_opengl_not_forked()  # no error
-    forking.note_opengl_context()
-    forking._after_fork_in_child()
-    with pytest.raises(RuntimeError, match="forked from one that had made an OpenGL context"):
+def _report_of(script: str, **run_kwargs) -> dict:
+    """What ``script``, run in a fresh interpreter, prints as JSON on its last line."""
+    result = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+        **run_kwargs,
+    )
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+_FORK_SCRIPT = """
+import json
+from liuxing_envs import forking
+from tests.forked_child import outcome_in_forked_child
+
+def check_in_child(results):
+    try:
         forking.check_opengl_not_forked()
+        results.put("allowed")
+    except RuntimeError as error:
+        results.put(str(error))
+
+before = outcome_in_forked_child(check_in_child)
+forking.note_opengl_context()
+after = outcome_in_forked_child(check_in_child)
+print(json.dumps({"before": before, "after": after}))
+"""
+
+
+def test_only_a_child_forked_after_a_context_is_refused_opengl():
+    # The hook runs at every fork since the package was imported: a child forked before
+    # this process made any context may still make its own. A fresh interpreter, as this
+    # one has made contexts already.
+    outcome = _report_of(_FORK_SCRIPT, cwd=os.path.dirname(os.path.dirname(__file__)) or ".")
+    assert outcome["before"] == "allowed"
+    assert "forked from one that had made an OpenGL context" in outcome["after"]
 
 
 def test_close_is_idempotent_and_final(box_model):
@@ -915,15 +938,7 @@ def test_auto_backend_falls_back_to_raycast_without_gl():
     # make a context: the backend is picked when mujoco is imported, so it cannot be in-process.
     env = {**os.environ, "MUJOCO_GL": "glfw", "DISPLAY": ":31999"}
     env.pop("WAYLAND_DISPLAY", None)
-    result = subprocess.run(
-        [sys.executable, "-c", _FALLBACK_SCRIPT],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    )
-    report = json.loads(result.stdout.strip().splitlines()[-1])
+    report = _report_of(_FALLBACK_SCRIPT, env=env)
     assert report["backend"] == "raycast"
     assert len(report["warnings"]) == 1 and "ray-cast" in report["warnings"][0]
 

@@ -1,5 +1,7 @@
 """CoverageTracker: surface coverage within epsilon, checked against brute-force distances."""
 
+import tracemalloc
+
 import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
@@ -27,6 +29,18 @@ def brute_force_covered(samples, points, epsilon):
     if len(points) == 0:
         return np.zeros(len(samples), dtype=bool)
     return cdist(samples, points).min(axis=1) <= epsilon
+
+
+def bytes_kept_by(make) -> int:
+    """Memory (numpy arrays included) that ``make()`` allocates and its result keeps."""
+    tracemalloc.start()
+    try:
+        made = make()
+        kept = tracemalloc.get_traced_memory()[0]
+        del made
+        return kept
+    finally:
+        tracemalloc.stop()
 
 
 METHODS = [{"method": m} for m in COVERAGE_METHODS]
@@ -152,8 +166,10 @@ def test_fresh_trackers_share_the_set_up_but_not_what_they_covered(method):
         second.update(b)
         assert np.array_equal(first.covered, alone.covered)
     assert not np.array_equal(first.covered, second.covered)
-    if method == "grid":
-        assert first._cell_samples is original._cell_samples  # one grid in memory
+    # One set-up in memory: a fresh tracker allocates its own scan state, not a second grid
+    # (nor a second copy of the samples).
+    set_up = bytes_kept_by(lambda: CoverageTracker(samples, 0.004, observable, method=method))
+    assert bytes_kept_by(original.fresh) < 0.25 * set_up
 
 
 @pytest.mark.parametrize("method", COVERAGE_METHODS)

@@ -18,7 +18,7 @@ def cache(tmp_path, monkeypatch):
     """An empty cache folder, a cold in-memory cache, and a count of the ray casts."""
     folder = tmp_path / "cache"
     monkeypatch.setenv(disk_cache.CACHE_ENV_VAR, str(folder))
-    objects._observable_samples.cache_clear()
+    objects.clear_memory_caches()
     casts = []
     real = objects.observable_mask
 
@@ -28,7 +28,7 @@ def cache(tmp_path, monkeypatch):
 
     monkeypatch.setattr(objects, "observable_mask", counted)
     yield folder, casts
-    objects._observable_samples.cache_clear()
+    objects.clear_memory_caches()
 
 
 def entries(folder):
@@ -41,7 +41,7 @@ def stored_array(entry):
 
 def cold(*args, **kwargs):
     """observable_samples as a new process would compute it: nothing in memory."""
-    objects._observable_samples.cache_clear()
+    objects.clear_memory_caches()
     return observable_samples(*args, **kwargs)
 
 
@@ -136,7 +136,7 @@ def test_a_damaged_entry_never_changes_what_an_env_measures(cache):
     kwargs = {"objects": ["mug"], "scales": (1.0,), "coverage_samples": 1024}
 
     def coverages():
-        objects._observable_samples.cache_clear()
+        objects.clear_memory_caches()
         env = gym.make("ViewPlanning-v1", **kwargs)
         try:
             return [env.reset(seed=seed)[1]["coverage"] for seed in range(3)]

@@ -352,7 +352,7 @@ def test_training_on_a_dying_worker_says_so_and_keeps_a_checkpoint(tmp_path):
     )
     died = r"InstrumentGrasp-v1 env lost a worker: worker \d of 2 \(pid \d+\) exited with status 1"
     with pytest.raises(RuntimeError, match=died) as error:
-        training._learn(model, config, tmp_path, progress_bar=False, resuming=False)
+        training.learn_in_run_folder(model, config, tmp_path, progress_bar=False, resuming=False)
     assert "--resume" in str(error.value)
     # One whole rollout (2 envs x 2 steps) was learnt from before the fourth step failed.
     assert run_folder.latest_checkpoint(tmp_path) == 4
@@ -362,15 +362,16 @@ def failing_grasp_env():
     """InstrumentGrasp-v1 whose fourth step fails (a stand-in for any bug in a worker)."""
     env = gym.make("InstrumentGrasp-v1", **GRASP_FAST)
     calls = {"n": 0}
-    original = env.unwrapped._apply_arm_action
+    controller = env.unwrapped.arm_controller
+    original = controller.apply
 
-    def apply(action):
+    def apply(*args):
         calls["n"] += 1
         if calls["n"] == 4:
             raise RuntimeError("injected failure")
-        return original(action)
+        return original(*args)
 
-    env.unwrapped._apply_arm_action = apply
+    controller.apply = apply
     return env
 
 

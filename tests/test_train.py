@@ -453,6 +453,22 @@ def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
     assert "(did you mean 'ViewPlaning-v0'?); it has: " in capsys.readouterr().err
 
 
+def test_a_variant_trains_with_its_tasks_entry_and_a_deprecated_version_needs_its_own(
+    tmp_path, capsys
+):
+    from agents.config import default_hyperparams
+
+    tuned = default_hyperparams("sac", "InstrumentGrasp-v1")
+    assert default_hyperparams("sac", "InstrumentGraspDepth-v1") == tuned
+    # v1's entry is tuned for v1's defaults; under v0's it would train another task.
+    with pytest.raises(SystemExit):
+        train.main(["--env", "InstrumentGrasp-v0", "--algo", "sac"])
+    assert "'InstrumentGrasp-v0' is deprecated" in capsys.readouterr().err
+    config = tmp_path / "sac.yml"
+    config.write_text(yaml.safe_dump({"InstrumentGrasp-v0": {"n_timesteps": 10}}))
+    assert default_hyperparams("sac", "InstrumentGrasp-v0", config) == {"n_timesteps": 10}
+
+
 def test_the_periodic_evaluation_can_choose_the_best_model_on_other_objects(tmp_path):
     from agents.training import PeriodicEvaluation, resolve_config
     from liuxing_envs.sim.objects import OBJECT_SETS

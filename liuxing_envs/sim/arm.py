@@ -114,7 +114,10 @@ class Arm:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         for part in (self.collision_checks, self.ik, self.motion):
-            part.link(self)
+            # Copied parts (pickle, deepcopy) come without their link; a shallow copy shares
+            # the original's parts, which stay linked to it.
+            if not part.linked:
+                part.link(self)
 
     # ------------------------------------------------------------------ state
     @property

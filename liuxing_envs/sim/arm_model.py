@@ -29,6 +29,12 @@ class ArmPart:
         self._arm_ref = weakref.ref(arm)
 
     @property
+    def linked(self) -> bool:
+        """Whether the part refers to a live arm (a copy's parts do once the arm's copy
+        has linked them)."""
+        return "_arm_ref" in self.__dict__ and self._arm_ref() is not None
+
+    @property
     def _arm(self) -> Arm:
         return self._arm_ref()
 

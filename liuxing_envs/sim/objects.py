@@ -52,6 +52,7 @@ __all__ = [
     "PROCEDURAL_PREFIX",
     "PROCEDURAL_SET_SIZE",
     "PROCEDURAL_SIZE_RANGE",
+    "clear_memory_caches",
     "default_observation_viewpoints",
     "get_object",
     "is_object_name",
@@ -1375,6 +1376,14 @@ def _observable_samples(
     for array in (scaled_points, mask):
         array.setflags(write=False)
     return ObservableSamples(scaled_points, normals, mask)
+
+
+def clear_memory_caches() -> None:
+    """Forget the surface and observable samples cached in this process's memory (not on
+    disk): the next call computes them, or reads them from the disk cache, as a new process
+    would. For tests and benchmarks that measure the cold path."""
+    _surface_samples.cache_clear()
+    _observable_samples.cache_clear()
 
 
 def _stored_observable_mask(
