@@ -2,10 +2,11 @@
 
 An env's settings are a :class:`Settings` dataclass whose fields are its parts' settings
 (:class:`Part` dataclasses: the arm controller, the gripper, the safety layer, the reward, the
-scene, the sensors). Every default lives in one place, the part's field, declared with
-:func:`knob` (its meaning, unit and the modes it applies to). The flat names of the parts'
-fields, unique across an env, are the public keyword interface: ``gym.make(id, **kwargs)``,
-``train.py --env-kwargs``, the YAML files, the docs' argument tables and sweeps all name them.
+scene, the sensors), each declared with :func:`part`. Every default lives in one place, the
+part's field, declared with :func:`knob` (its meaning, unit and the modes it applies to). The
+flat names of the parts' fields, unique across an env, are the public keyword interface:
+``gym.make(id, **kwargs)``, ``train.py --env-kwargs``, the YAML files, the docs' argument
+tables and sweeps all name them.
 
     settings = GraspSettings.from_flat({"max_grip_force": 3.0}, defaults=GRASP_V1)
     settings.gripper.max_grip_force  # 3.0
@@ -20,7 +21,9 @@ and an explicitly given setting that does not apply to the chosen mode
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any, ClassVar, Self
 
 from liuxing_envs.validation import closest
@@ -35,6 +38,11 @@ def knob(default: Any, doc: str, *, unit: str = "", only_with: Mapping[str, tupl
         raise TypeError(f"a knob's default must be immutable, got {default!r}")
     metadata = {"doc": doc, "unit": unit, "only_with": dict(only_with or {})}
     return dataclasses.field(default=default, metadata=metadata)
+
+
+def part(part_type: type[Part]):
+    """A :class:`Settings` field holding one part's settings, its defaults by default."""
+    return dataclasses.field(default_factory=part_type)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,8 +78,10 @@ class Settings:
         return {f.name: _part_type(cls, f) for f in dataclasses.fields(cls)}
 
     @classmethod
-    def knobs(cls) -> dict[str, tuple[str, dataclasses.Field]]:
-        """Every setting's flat name -> (its part's field name, its dataclass field)."""
+    @functools.cache
+    def knobs(cls) -> Mapping[str, tuple[str, dataclasses.Field]]:
+        """Every setting's flat name -> (its part's field name, its dataclass field). Found
+        once per class: an env reads its settings by flat name every step."""
         found: dict[str, tuple[str, dataclasses.Field]] = {}
         for part_name, part in cls.parts().items():
             for field in dataclasses.fields(part):
@@ -81,7 +91,7 @@ class Settings:
                         f"{found[field.name][0]!r} and {part_name!r}; flat names must be unique"
                     )
                 found[field.name] = (part_name, field)
-        return found
+        return MappingProxyType(found)
 
     @classmethod
     def flat_names(cls) -> tuple[str, ...]:
@@ -100,17 +110,7 @@ class Settings:
                     f"{cls.__name__} has no setting {name!r}{closest(name, allowed)}; "
                     f"allowed: {', '.join(allowed)}"
                 )
-        base = cls() if defaults is None else defaults
-        changes: dict[str, dict[str, Any]] = {}
-        for name, value in given.items():
-            changes.setdefault(knobs[name][0], {})[name] = value
-        parts = {
-            part_name: dataclasses.replace(getattr(base, part_name), **changes[part_name])
-            if part_name in changes
-            else getattr(base, part_name)
-            for part_name in cls.parts()
-        }
-        settings = cls(**parts)
+        settings = (cls() if defaults is None else defaults).replaced(**given)
         settings.refuse_inapplicable(given)
         return settings
 
@@ -120,6 +120,20 @@ class Settings:
             name: getattr(getattr(self, part_name), name)
             for name, (part_name, _) in self.knobs().items()
         }
+
+    def replaced(self, **given) -> Self:
+        """These settings with some replaced by their flat names, each part's values checked
+        but not whether a setting applies to its mode: a version's defaults hold every mode's
+        settings. Unknown names are :meth:`from_flat`'s to refuse."""
+        knobs = self.knobs()
+        changes: dict[str, dict[str, Any]] = {}
+        for name, value in given.items():
+            changes.setdefault(knobs[name][0], {})[name] = value
+        parts = {
+            part_name: dataclasses.replace(getattr(self, part_name), **part_changes)
+            for part_name, part_changes in changes.items()
+        }
+        return dataclasses.replace(self, **parts)
 
     def changed(self, **given) -> Self:
         """These settings with some changed by their flat names (checked as :meth:`from_flat`
@@ -189,7 +203,6 @@ def _part_type(settings: type[Settings], field: dataclasses.Field) -> type[Part]
         part = None
     if part is None or not issubclass(part, Part):
         raise TypeError(
-            f"{settings.__name__}.{field.name} must default to a Part's settings "
-            "(field(default_factory=ThePart))"
+            f"{settings.__name__}.{field.name} must default to a Part's settings (part(ThePart))"
         )
     return part

@@ -5,6 +5,7 @@ guard shortens a finger's target; after a reset or a protective stop, the openin
 
 from __future__ import annotations
 
+import abc
 from typing import TYPE_CHECKING
 
 from liuxing_envs.sim.gripper import MAX_OPENING
@@ -14,13 +15,13 @@ if TYPE_CHECKING:
     from liuxing_envs.sim.gripper import Gripper
 
 
-class GripperController:
-    """The commanded-opening bookkeeping every mode shares."""
+class GripperController(abc.ABC):
+    """The commanded-opening bookkeeping every mode shares; each mode says how it drives."""
 
     def __init__(self, settings: GripperControl) -> None:
         self.commanded_opening = 0.0
 
-    def prepare(self, gripper: Gripper) -> None:
+    def prepare(self, gripper: Gripper) -> None:  # noqa: B027 (a hook most modes leave empty)
         """Set up a world's gripper for this mode (once, when the env is made)."""
 
     def sync(self, gripper: Gripper) -> None:
@@ -32,8 +33,9 @@ class GripperController:
         self.drive(gripper, command)
         self.sync(gripper)
 
+    @abc.abstractmethod
     def drive(self, gripper: Gripper, command) -> None:
-        raise NotImplementedError
+        """Command the fingers for ``command`` (the action's gripper entry, in [-1, 1])."""
 
 
 class OpeningGripper(GripperController):

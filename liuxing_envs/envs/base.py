@@ -1,20 +1,27 @@
 """What every liuxing_envs env shares: its keyword interface checked by name (from its
-:class:`~liuxing_envs.settings.Settings` where it has them), its ``closed`` state (a closed env
-refuses ``step()`` until ``reset()`` reopens it, see
-:func:`liuxing_envs.validation.refuse_if_closed`), copies that leave out what can be rebuilt,
-and the warning of a deprecated id."""
+:class:`~liuxing_envs.settings.Settings` where it has them) and its settings readable by their
+flat names, its ``closed`` state (a closed env refuses ``step()`` until ``reset()`` reopens it,
+see :func:`liuxing_envs.validation.refuse_if_closed`), the step's checks and error notes, the
+overview camera's renderer, copies that leave out what can be rebuilt, and the warning of a
+deprecated id."""
 
 from __future__ import annotations
 
 import functools
 import inspect
+import operator
 import warnings
 from typing import ClassVar
 
 import gymnasium as gym
 
+from liuxing_envs.forking import check_opengl_not_forked
+from liuxing_envs.opengl import new_renderer
 from liuxing_envs.settings import Settings
-from liuxing_envs.validation import closest
+from liuxing_envs.validation import closest, refuse_if_closed, step_context
+
+#: (height, width) of ``render()``'s frames.
+RENDER_SIZE = (480, 640)
 
 
 class LiuxingEnv(gym.Env):
@@ -29,12 +36,19 @@ class LiuxingEnv(gym.Env):
     #: from the settings by :meth:`rebuild_after_copy`.
     rebuilt_on_copy: ClassVar[tuple[str, ...]] = ()
 
+    #: The settings of the id the class is registered as; a docstring's ``{arguments}`` is
+    #: their table.
+    default_settings: ClassVar[Settings | None] = None
     #: A deprecated version's (old id, new id, what the new one changes): making it warns.
     deprecation: ClassVar[tuple[str, str, str] | None] = None
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
         own = cls.__dict__
+        if cls.settings_type is not None and "{arguments}" in (own.get("__doc__") or ""):
+            # The spec's argument table, made from the settings' knobs with this id's defaults.
+            table = cls.settings_type.markdown_table(cls.default_settings)
+            cls.__doc__ = cls.__doc__.replace("{arguments}", table.replace("\n", "\n    "))
         if "__init__" not in own and "default_settings" not in own:
             return
         # A version that only changes the defaults inherits the checked __init__: its own
@@ -94,14 +108,63 @@ class LiuxingEnv(gym.Env):
         deprecated id's registered time limit is shorter)."""
         return self.settings.flat()[self.episode_length_setting]
 
-    def close(self) -> None:
-        """Marks the env closed: :meth:`step` is refused until ``reset()`` reopens it (each
-        env's own ``close()`` frees its renderers, which a reset makes again when needed)."""
-        self.closed = True
+    def __getattr__(self, name: str):
+        """Every setting by its flat name (``env.view_budget``, ``env.max_grip_force``)."""
+        settings = self.__dict__.get("settings")
+        found = None if settings is None else settings.knobs().get(name)
+        if found is None:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return getattr(getattr(settings, found[0]), name)
 
+    # ------------------------------------------------------------------ stepping
+    #: Whether ``step()`` may run: set by a successful ``reset()``, cleared at an episode's end.
+    _episode_ready = False
+    #: The last ``reset()``'s seed, named in the notes of an error raised in ``step()``.
+    _reset_seed: int | None = None
+
+    def step(self, action):
+        refuse_if_closed(self)
+        with step_context(self, self._steps_taken() + 1, self._reset_seed):
+            if not self._episode_ready:
+                raise RuntimeError("call reset() before step(), and again after an episode ends")
+            return self._step(action)
+
+    def _steps_taken(self) -> int:
+        """Steps of the episode taken so far."""
+        raise NotImplementedError
+
+    def _step(self, action):
+        """``step()`` once the env is open and its episode ready."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ rendering, closing
+    #: The overview camera's renderer (``render_mode="rgb_array"``), made on first use.
+    _renderer = None
+
+    def _overview_renderer(self, model):
+        """The overview camera's renderer for ``model``, made on first use (never before a
+        fork: a renderer made in the parent hangs in the child)."""
+        check_opengl_not_forked()
+        if self._renderer is None:
+            self._renderer = new_renderer(model, *RENDER_SIZE)
+        return self._renderer
+
+    def _close_renderer(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def close(self) -> None:
+        """Marks the env closed: :meth:`step` is refused until ``reset()`` reopens it, and
+        frees the renderer (each env's own ``close()`` frees its cameras); a reset makes them
+        again when needed."""
+        self.closed = True
+        self._close_renderer()
+
+    # ------------------------------------------------------------------ copies
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for name in self.rebuilt_on_copy:
+        for name in ("_renderer", *self.rebuilt_on_copy):
             state.pop(name, None)
         return state
 
@@ -113,6 +176,12 @@ class LiuxingEnv(gym.Env):
     def rebuild_after_copy(self) -> None:
         """Make again the attributes named in :attr:`rebuilt_on_copy` (after unpickling)."""
         raise NotImplementedError(f"{type(self).__name__} names rebuilt_on_copy: rebuild them")
+
+
+def delegate(path: str, doc: str | None = None) -> property:
+    """A read-only property that reads ``path`` (``"scene.model"``) off the env: a part's
+    attribute under the name code outside has always read it by."""
+    return property(operator.attrgetter(path), doc=doc or f"``self.{path}``.")
 
 
 def warn_deprecated(old_id: str, new_id: str, what_changed: str) -> None:

@@ -2,23 +2,20 @@
 
 from __future__ import annotations
 
-import math
 from typing import ClassVar
 
-import mujoco
 import numpy as np
 from gymnasium import spaces
 
-from liuxing_envs.control.arm_control import ArmMove, arm_controller
+from liuxing_envs.control.arm_control import arm_controller
 from liuxing_envs.control.gripper_control import gripper_controller
-from liuxing_envs.envs.base import LiuxingEnv
+from liuxing_envs.envs.base import LiuxingEnv, delegate
 from liuxing_envs.envs.instrument_grasp_settings import V0, V1, InstrumentGraspSettings
-from liuxing_envs.forking import check_opengl_not_forked
-from liuxing_envs.opengl import new_renderer, require_opengl
+from liuxing_envs.opengl import require_opengl
 from liuxing_envs.safety.approach_guard import ApproachGuard
 from liuxing_envs.safety.force_monitor import ForceMonitor
-from liuxing_envs.sim.camera import CameraIntrinsics
-from liuxing_envs.sim.grasp_world import GraspWorld, jaws_across
+from liuxing_envs.sensors.grasp_sensor import GraspSensor, decode_depth, encode_depth
+from liuxing_envs.sim.grasp_world import GraspWorld
 from liuxing_envs.sim.scene import OVERVIEW_CAMERA
 from liuxing_envs.tasks.instrument_grasp_start import (
     TOOL_START_HIGH,
@@ -27,13 +24,7 @@ from liuxing_envs.tasks.instrument_grasp_start import (
     StartDraw,
 )
 from liuxing_envs.tasks.instrument_grasp_task import REWARD_TERMS, InstrumentGraspTask
-from liuxing_envs.validation import (
-    as_action,
-    finite_vector,
-    refuse_if_closed,
-    require_choice,
-    step_context,
-)
+from liuxing_envs.validation import as_action, finite_vector, require_choice
 
 __all__ = [
     "DEFAULT_CONTROL_HZ",
@@ -49,25 +40,7 @@ __all__ = [
 #: The default control timing (v0 and v1 alike), for code that sizes runs by it.
 DEFAULT_CONTROL_HZ = V1.timing.control_hz
 DEFAULT_TIMESTEP = V1.timing.timestep
-#: Depth observations are uint8 (what SB3's CNNs take): level 0 = no return, levels 1-255
-#: span this z-depth range linearly (about 2 mm per level); farther saturates at 255.
-DEPTH_RANGE = (0.1, 0.6)  # m
 FORCE_COLOUR_RANGE = 15.0  # N shown as full red on the pads in render()
-
-
-def observation_space(obs_mode: str, resolution: int) -> spaces.Dict:
-    """The observation space of ``obs_mode`` with square images of ``resolution`` pixels."""
-    obs = {
-        "proprio": spaces.Box(-np.inf, np.inf, (19,), dtype=np.float32),
-        "forces": spaces.Box(0.0, np.inf, (2,), dtype=np.float32),
-    }
-    if obs_mode == "state":
-        obs["instrument"] = spaces.Box(-np.inf, np.inf, (14,), dtype=np.float32)
-    else:
-        obs["depth"] = spaces.Box(0, 255, (1, resolution, resolution), dtype=np.uint8)
-    if obs_mode == "rgbd":
-        obs["rgb"] = spaces.Box(0, 255, (3, resolution, resolution), dtype=np.uint8)
-    return spaces.Dict(obs)
 
 
 class InstrumentGraspEnv(LiuxingEnv):
@@ -83,7 +56,8 @@ class InstrumentGraspEnv(LiuxingEnv):
     ``"train"`` (scalpel, tissue_forceps, scissors, hemostat, retractor), ``"held_out"``
     (needle_holder, probe) or ``"all"``. The parts: the arm and gripper controllers
     (``liuxing_envs.control``), the approach guard and force monitor (``liuxing_envs.safety``),
-    the task (``liuxing_envs.tasks.instrument_grasp_task``), the world (``sim/grasp_world.py``).
+    the observation (``liuxing_envs.sensors.grasp_sensor``), the task
+    (``liuxing_envs.tasks.instrument_grasp_task``), the world (``sim/grasp_world.py``).
 
     ## Action space
     ``Box(-1, 1)``, float32; out-of-range values are clipped, NaN/inf
@@ -237,12 +211,12 @@ class InstrumentGraspEnv(LiuxingEnv):
         self.metadata = {**self.metadata, "render_fps": int(fps) if fps.is_integer() else fps}
         self.instrument_names = self.settings.scene.names
         self.substeps = timing.substeps
-        self.intrinsics = CameraIntrinsics(width=sensors.resolution, height=sensors.resolution)
-        # The parts: arm and gripper controllers, the safety layer, the task.
+        # The parts: arm and gripper controllers, the safety layer, the sensors, the task.
         self.arm_controller = arm_controller(arm)
         self.gripper_controller = gripper_controller(self.settings.gripper)
         self.approach_guard = ApproachGuard(self.settings.safety)
         self.force_monitor = ForceMonitor(self.settings.safety, self.substeps)
+        self.sensor = GraspSensor(sensors)
         self.task = InstrumentGraspTask(self.settings)
         self._worlds = {
             name: GraspWorld(
@@ -260,29 +234,15 @@ class InstrumentGraspEnv(LiuxingEnv):
         self.action_space = spaces.Box(
             -1.0, 1.0, shape=(self.arm_controller.action_size + 1,), dtype=np.float32
         )
-        self.observation_space = observation_space(obs_mode, sensors.resolution)
-        self._reset_seed: int | None = None
+        self.observation_space = self.sensor.space
         self._episodes_started = 0
-        self._episode_ready = False
-        self._renderer: mujoco.Renderer | None = None
 
-    # The settings code outside reads by name (the baselines, the recorders, the tests).
-    obs_mode = property(lambda self: self.settings.sensors.obs_mode)
-    controller = property(lambda self: self.settings.arm.controller)
-    max_translation = property(lambda self: self.settings.arm.max_translation)
-    max_yaw = property(lambda self: self.settings.arm.max_yaw)
-    max_joint_delta = property(lambda self: self.settings.arm.max_joint_delta)
-    arm_stiffness = property(lambda self: self.settings.arm.arm_stiffness)
-    servo_damping_ratio = property(lambda self: self.settings.arm.servo_damping_ratio)
-    gripper_control = property(lambda self: self.settings.gripper.gripper_control)
-    max_gripper_delta = property(lambda self: self.settings.gripper.max_gripper_delta)
-    max_grip_force = property(lambda self: self.settings.gripper.max_grip_force)
-    force_limit = property(lambda self: self.settings.safety.force_limit)
-    hard_limit = property(lambda self: self.settings.safety.hard_limit)
-    approach_distance = property(lambda self: self.settings.safety.approach_distance)
-    approach_guard_fingers = property(lambda self: self.settings.safety.approach_guard_fingers)
-    target_height = property(lambda self: self.settings.task.target_height)
-    episode_steps = property(lambda self: self.settings.task.episode_steps)
+    # Every setting reads by its flat name (``env.max_grip_force``, see LiuxingEnv); these
+    # derived ones and the parts' too, as code outside has always read them.
+    hard_limit = delegate("settings.safety.hard_limit", "Pad force of a protective stop (N).")
+    intrinsics = delegate("sensor.intrinsics", "The wrist camera's intrinsics.")
+    encode_depth = staticmethod(encode_depth)
+    decode_depth = staticmethod(decode_depth)
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -291,9 +251,8 @@ class InstrumentGraspEnv(LiuxingEnv):
         super().reset(seed=seed)
         self._reset_seed = seed
         start = self.start_draw.draw(options, self.np_random, self.settings.scene)
-        if self._renderer is not None and self.world.name != start.instrument:
-            self._renderer.close()
-            self._renderer = None
+        if self.world.name != start.instrument:
+            self._close_renderer()  # made for the other instrument's model
         self.world = self._worlds[start.instrument]
         self._episode_ready = False  # until the reset below has succeeded
         self.world.reset(
@@ -312,17 +271,13 @@ class InstrumentGraspEnv(LiuxingEnv):
         info = self.task.info(self.world, {}, grasped=False, step_peak=0.0, success=False, lift=0.0)
         return self._observation(), info
 
-    def step(self, action):
-        refuse_if_closed(self)
-        with step_context(self, self.task.stats.steps + 1, self._reset_seed):
-            return self._step(action)
+    def _steps_taken(self) -> int:
+        return self.task.stats.steps
 
     def _step(self, action):
-        if not self._episode_ready:
-            raise RuntimeError("call reset() before step(), and again after an episode ends")
         action = np.clip(as_action(action, self.action_space.shape), -1.0, 1.0)
         world, task = self.world, self.task
-        move = self._apply_arm_action(action[:-1])
+        move = self.arm_controller.apply(world, action[:-1], self.approach_guard)
         approach = task.approach(world)
         self.gripper_controller.apply(world.gripper, action[-1])
         braked = False
@@ -336,7 +291,9 @@ class InstrumentGraspEnv(LiuxingEnv):
             return self._end_unstable()
         broke_limit = self.force_monitor.broke_limit(peaks)
         result = task.step(world, peaks, broke_limit, approach)
-        truncated = self.truncates_at_episode_steps and task.stats.steps >= self.episode_steps
+        truncated = (
+            self.truncates_at_episode_steps and task.stats.steps >= self.settings.task.episode_steps
+        )
         if result.terminated or truncated:
             self._episode_ready = False
         info = task.info(
@@ -366,9 +323,7 @@ class InstrumentGraspEnv(LiuxingEnv):
         if self.render_mode != "rgb_array":
             return None
         world = self.world
-        check_opengl_not_forked()  # a renderer made before a fork hangs in the child
-        if self._renderer is None:
-            self._renderer = new_renderer(world.model, 480, 640)
+        renderer = self._overview_renderer(world.model)
         # Pads shade from white to red with their force: the force read-out.
         forces = world.gripper.fingertip_forces()
         saved = world.model.geom_rgba[world.gripper.pad_geoms].copy()
@@ -376,37 +331,15 @@ class InstrumentGraspEnv(LiuxingEnv):
         world.model.geom_rgba[world.gripper.pad_geoms, :3] = (1 - level) * 0.92 + level * np.array(
             [0.95, 0.05, 0.05]
         )
-        self._renderer.update_scene(world.data, camera=OVERVIEW_CAMERA)
-        frame = self._renderer.render().copy()
+        renderer.update_scene(world.data, camera=OVERVIEW_CAMERA)
+        frame = renderer.render().copy()
         world.model.geom_rgba[world.gripper.pad_geoms] = saved
         return frame
 
     def close(self) -> None:
         super().close()
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
         for world in self._worlds.values():
             world.close()
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["_renderer"] = None
-        return state
-
-    @staticmethod
-    def encode_depth(depth_m: np.ndarray) -> np.ndarray:
-        """uint8 levels of a z-depth image in metres (see DEPTH_RANGE; 0 = no return)."""
-        near, far = DEPTH_RANGE
-        levels = 1.0 + np.round((np.clip(depth_m, near, far) - near) / (far - near) * 254.0)
-        return np.where(depth_m > 0, levels, 0.0).astype(np.uint8)
-
-    @staticmethod
-    def decode_depth(levels: np.ndarray) -> np.ndarray:
-        """z-depth in metres of the ``depth`` observation's levels (0 where no return)."""
-        near, far = DEPTH_RANGE
-        levels = np.asarray(levels, dtype=np.float64)
-        return np.where(levels > 0, near + (levels - 1.0) / 254.0 * (far - near), 0.0)
 
     def wrist_camera_pose(self, arm_qpos=None) -> tuple[np.ndarray, np.ndarray]:
         """Wrist camera position (m) and rotation (columns = camera x, y, z; it looks along
@@ -434,57 +367,8 @@ class InstrumentGraspEnv(LiuxingEnv):
         """Seconds of simulated time per control step (as Gymnasium's MuJoCo envs)."""
         return self.substeps * self.world.model.opt.timestep
 
-    def _apply_arm_action(self, arm_action: np.ndarray) -> ArmMove:
-        """Move the arm's set-point for ``arm_action`` (guarded where the guard is on)."""
-        return self.arm_controller.apply(self.world, arm_action, self.approach_guard)
-
     def _observation(self) -> dict:
-        world, gripper = self.world, self.world.gripper
-        tcp = world.tcp_position()
-        yaw = world.tcp_yaw()
-        cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
-        # Lists of Python floats made into one float32 array each: concatenating 2- and
-        # 3-vectors in numpy cost twice as much, every step.
-        proprio = [
-            *world.arm.qpos.tolist(),
-            *world.arm.qvel.tolist(),
-            *tcp.tolist(),
-            cos_yaw,
-            sin_yaw,
-            gripper.opening(),
-            # The action's, which the approach guard may shorten.
-            self.gripper_controller.commanded_opening,
-        ]
-        obs = {
-            "proprio": np.array(proprio, dtype=np.float32),
-            "forces": gripper.fingertip_forces().astype(np.float32),
-        }
-        if self.obs_mode == "state":
-            grasp_point, axis = world.grasp_point(), world.grasp_axis()
-            # The same geometry relative to the tool, as a controller needs it: millimetre
-            # offsets are small differences of the absolute positions, which a network
-            # fed normalised absolute inputs resolves poorly.
-            dx, dy, dz = (grasp_point - tcp).tolist()
-            misalignment = 2.0 * (yaw - jaws_across(axis))  # the jaws: half-turn symmetric
-            instrument = [
-                *grasp_point.tolist(),
-                *axis.tolist(),
-                *world.instrument_velocity().tolist(),
-                cos_yaw * dx + sin_yaw * dy,
-                -sin_yaw * dx + cos_yaw * dy,
-                dz,
-                math.cos(misalignment),
-                math.sin(misalignment),
-            ]
-            obs["instrument"] = np.array(instrument, dtype=np.float32)
-        else:
-            depth = world.camera(self.intrinsics, self.settings.sensors.depth_backend).render(
-                world.data
-            )
-            obs["depth"] = self.encode_depth(depth)[None]
-        if self.obs_mode == "rgbd":
-            obs["rgb"] = world.rgb(self.intrinsics).transpose(2, 0, 1).copy()
-        return obs
+        return self.sensor.observe(self.world, self.gripper_controller.commanded_opening)
 
 
 class InstrumentGraspV0Env(InstrumentGraspEnv):
@@ -501,11 +385,3 @@ class InstrumentGraspV0Env(InstrumentGraspEnv):
         "guarded approach, stiffer penalties, ray-cast depth; it truncates itself at "
         "episode_steps",
     )
-
-
-def _arguments_table() -> str:
-    """The docstring's argument table: v1's settings, from their knobs."""
-    return InstrumentGraspSettings.markdown_table(V1).replace("\n", "\n    ")
-
-
-InstrumentGraspEnv.__doc__ = InstrumentGraspEnv.__doc__.replace("{arguments}", _arguments_table())

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from liuxing_envs.settings import Part, Settings, knob
+from liuxing_envs.settings import Part, Settings, knob, part
 from liuxing_envs.validation import require_choice, require_int, require_number, require_range
 
 OBS_MODES = ("state", "depth", "rgbd")
@@ -335,13 +335,13 @@ class InstrumentGraspSettings(Settings):
 
     extra_keywords = ("render_mode",)
 
-    sensors: GraspSensors = dataclasses.field(default_factory=GraspSensors)
-    arm: ArmControl = dataclasses.field(default_factory=ArmControl)
-    gripper: GripperControl = dataclasses.field(default_factory=GripperControl)
-    timing: ControlTiming = dataclasses.field(default_factory=ControlTiming)
-    scene: GraspScene = dataclasses.field(default_factory=GraspScene)
-    safety: Safety = dataclasses.field(default_factory=Safety)
-    task: GraspTask = dataclasses.field(default_factory=GraspTask)
+    sensors: GraspSensors = part(GraspSensors)
+    arm: ArmControl = part(ArmControl)
+    gripper: GripperControl = part(GripperControl)
+    timing: ControlTiming = part(ControlTiming)
+    scene: GraspScene = part(GraspScene)
+    safety: Safety = part(Safety)
+    task: GraspTask = part(GraspTask)
 
     def check(self) -> None:
         if self.safety.approach_lead_limit is not None and self.arm.controller != "ee_delta":
@@ -383,27 +383,12 @@ class InstrumentGraspSettings(Settings):
         )
 
 
-def _with_defaults(settings: InstrumentGraspSettings, **flat) -> InstrumentGraspSettings:
-    """``settings`` with defaults changed by flat name: a version's defaults hold every mode's
-    settings, so unlike :meth:`Settings.changed` this does not refuse inapplicable ones."""
-    knobs = settings.knobs()
-    changes: dict[str, dict] = {}
-    for name, value in flat.items():
-        changes.setdefault(knobs[name][0], {})[name] = value
-    parts = {
-        part: dataclasses.replace(getattr(settings, part), **given)
-        for part, given in changes.items()
-    }
-    return dataclasses.replace(settings, **parts)
-
-
 #: ``InstrumentGrasp-v1``: the task of the shipped grasp policy
 #: (``policies/InstrumentGrasp-v0/sac/config.yml``), depth ray-cast on every machine.
 V1 = InstrumentGraspSettings()
 #: ``InstrumentGrasp-v0`` (deprecated): a stiff arm with the model's servo damping, the
 #: gripper servoing to an opening, gentler penalties, no guard.
-V0 = _with_defaults(
-    V1,
+V0 = V1.replaced(
     reach_sharpness=10.0,
     gripper_control="opening",
     max_grip_force=20.0,

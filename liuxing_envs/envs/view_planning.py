@@ -12,20 +12,17 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import mujoco
 import numpy as np
 from gymnasium import spaces
 
 from liuxing_envs.control.view_action import ViewActions
 from liuxing_envs.control.view_motion import ViewMotion
-from liuxing_envs.envs.base import LiuxingEnv
+from liuxing_envs.envs.base import LiuxingEnv, delegate
 from liuxing_envs.envs.view_planning_settings import V0, V1, ViewPlanningSettings
-from liuxing_envs.forking import check_opengl_not_forked
-from liuxing_envs.opengl import new_renderer, require_opengl
+from liuxing_envs.opengl import require_opengl
 from liuxing_envs.perception.reconstruction import Reconstruction
-from liuxing_envs.sensors.view_sensor import ViewSensor
-from liuxing_envs.sim.arm import Arm
-from liuxing_envs.sim.camera import CameraIntrinsics, DepthCamera
+from liuxing_envs.sensors.view_sensor import ViewSensor, estimate_center
+from liuxing_envs.sim.camera import CameraIntrinsics
 from liuxing_envs.sim.markers import add_frustum, add_points
 from liuxing_envs.sim.object_lists import load_objects
 from liuxing_envs.sim.objects import OBJECT_SETS
@@ -33,20 +30,23 @@ from liuxing_envs.sim.scene import OVERVIEW_CAMERA
 from liuxing_envs.sim.view_scene import CoverageSetUp, Placements, ViewScene, check_observable
 from liuxing_envs.sim.viewpoints import sphere_point
 from liuxing_envs.tasks.view_planning_task import ViewPlanningTask
-from liuxing_envs.validation import (
-    is_number,
-    refuse_if_closed,
-    require_choice,
-    require_number,
-    step_context,
-)
+from liuxing_envs.validation import is_number, require_choice, require_number
 
 #: = view_planning_settings.OBJECT_SET_NAMES (a test keeps them equal).
 OBJECT_SET_NAMES = tuple(OBJECT_SETS)
 #: F-score threshold of the reconstruction, as a share of the bounding-box diagonal.
 DEFAULT_TAU_FRACTION = 0.01
-RENDER_SIZE = (480, 640)
 RENDER_MAX_POINTS = 3000
+#: The observation's keys, in their order (the sensor's and the task's, interleaved).
+OBSERVATION_KEYS = (
+    "depth",
+    "map",
+    "view_history",
+    "camera_pose",
+    "budget",
+    "free_space",
+    "coverage",
+)
 
 
 class ViewPlanningEnv(LiuxingEnv):
@@ -143,7 +143,7 @@ class ViewPlanningEnv(LiuxingEnv):
     default_settings: ViewPlanningSettings = V1
     #: Made again from the settings after a pickle or deep copy (:meth:`rebuild_after_copy`):
     #: the compiled scene, its stand-ins and coverage set-up are most of an env's size.
-    rebuilt_on_copy = ("scene", "_renderer")
+    rebuilt_on_copy = ("scene",)
 
     def __init__(self, *, render_mode: str | None = None, **settings) -> None:
         self.settings = ViewPlanningSettings.from_flat(settings, defaults=self.default_settings)
@@ -172,16 +172,8 @@ class ViewPlanningEnv(LiuxingEnv):
 
         self.action_space = self.actions.space
         self.observation_space = spaces.Dict(
-            {
-                **self.sensor.observation_spaces(),
-                **self.task.observation_spaces(),
-                "camera_pose": spaces.Box(-2.0, 2.0, (9,), dtype=np.float32),
-            }
+            {**self.sensor.observation_spaces(), **self.task.observation_spaces()}
         )
-
-        self._renderer: mujoco.Renderer | None = None
-        self._reset_seed: int | None = None
-        self._episode_ready = False
         self.center = np.zeros(3)
 
     def _coverage_set_up(self) -> CoverageSetUp:
@@ -214,7 +206,7 @@ class ViewPlanningEnv(LiuxingEnv):
         self.task.reset(self.scene.tracker(placed.name, placed.scale))
         self.sensor.reset()
         points = self.sensor.capture(self.scene, self.np_random)
-        self.center = self._estimate_center(points)
+        self.center = estimate_center(points, self.object_region)
         self.sensor.start_free_space(self.center)
         self.sensor.carve_free_space()
         self.coverage.update(placed.to_object(points))
@@ -222,14 +214,10 @@ class ViewPlanningEnv(LiuxingEnv):
         info = self.task.info(0.0, {}, placed, planned=True, refused=False, path=0.0)
         return self._observation(), info
 
-    def step(self, action):
-        refuse_if_closed(self)
-        with step_context(self, self.views_used + 1, self._reset_seed):
-            return self._step(action)
+    def _steps_taken(self) -> int:
+        return self.views_used
 
     def _step(self, action):
-        if not self._episode_ready:
-            raise RuntimeError("call reset() before step(), and again after an episode ends")
         azimuth, elevation, radius = self.actions.view(action)
         plan = self._plan_view(sphere_point(self.center, azimuth, elevation, radius))
         gain, path_length, reached, unstable = 0.0, 0.0, False, False
@@ -264,21 +252,15 @@ class ViewPlanningEnv(LiuxingEnv):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        check_opengl_not_forked()  # a renderer made before a fork hangs in the child
-        if self._renderer is None:
-            self._renderer = new_renderer(self.model, *RENDER_SIZE)
-        self._renderer.update_scene(self.data, camera=OVERVIEW_CAMERA)
-        scene = self._renderer.scene
-        add_points(scene, self.map.points(), RENDER_MAX_POINTS)
+        renderer = self._overview_renderer(self.model)
+        renderer.update_scene(self.data, camera=OVERVIEW_CAMERA)
+        add_points(renderer.scene, self.map.points(), RENDER_MAX_POINTS)
         position, rotation = self.camera.pose(self.data)
-        add_frustum(scene, position, rotation, self.intrinsics, length=0.25)
-        return self._renderer.render().copy()
+        add_frustum(renderer.scene, position, rotation, self.intrinsics, length=0.25)
+        return renderer.render().copy()
 
     def close(self) -> None:
         super().close()
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
         self.scene.close_camera()
 
     # ------------------------------------------------------------------ copies
@@ -294,77 +276,24 @@ class ViewPlanningEnv(LiuxingEnv):
         scene = self.settings.scene
         self.scene = self._build_scene(load_objects(scene.object_set, scene.objects))
         self.scene.restore_episode(episode)
-        self._renderer = None
 
     # ------------------------------------------------------------------ the parts' names
-    @property
-    def model(self) -> mujoco.MjModel:
-        return self.scene.model
-
-    @property
-    def data(self) -> mujoco.MjData:
-        return self.scene.data
-
-    @property
-    def arm(self) -> Arm:
-        return self.scene.arm
-
-    @property
-    def camera(self) -> DepthCamera:
-        """The wrist depth camera (made on first use, see :class:`ViewScene`)."""
-        return self.scene.camera
-
-    @property
-    def placed(self):
-        """The object on the table (None before the first reset)."""
-        return self.scene.placed
-
-    @property
-    def coverage(self):
-        """The episode's coverage tracker (ground truth)."""
-        return self.task.coverage
-
-    @property
-    def views_used(self) -> int:
-        return self.task.views_used
-
-    @property
-    def map(self):
-        """The fused voxel map of the episode."""
-        return self.sensor.map
-
-    @property
-    def free_space(self):
-        return self.sensor.free_space
-
-    @property
-    def depth(self) -> np.ndarray:
-        """The latest depth image (m, 0 = no return), as the camera rendered it."""
-        return self.sensor.depth
-
-    @property
-    def candidate_views(self) -> tuple[tuple[float, float, float], ...]:
-        return self.actions.candidate_views
-
-    @property
-    def azimuth_range(self) -> np.ndarray:
-        return self.actions.azimuth_range
-
-    @property
-    def elevation_range(self) -> np.ndarray:
-        return self.actions.elevation_range
-
-    @property
-    def radius_range(self) -> np.ndarray:
-        return self.actions.radius_range
-
-    def __getattr__(self, name: str):
-        """Every setting by its flat name (``env.view_budget``, ``env.map_grid``)."""
-        if name != "settings" and "settings" in self.__dict__:
-            flat = self.__dict__["settings"].flat()
-            if name in flat:
-                return flat[name]
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+    # Every setting reads by its flat name (``env.view_budget``, see LiuxingEnv); the parts'
+    # state by the names code outside has always read it by.
+    model = delegate("scene.model")
+    data = delegate("scene.data")
+    arm = delegate("scene.arm")
+    camera = delegate("scene.camera", "The wrist depth camera (made on first use, see ViewScene).")
+    placed = delegate("scene.placed", "The object on the table (None before the first reset).")
+    coverage = delegate("task.coverage", "The episode's coverage tracker (ground truth).")
+    views_used = delegate("task.views_used", "Views of the budget used this episode.")
+    map = delegate("sensor.map", "The fused voxel map of the episode.")
+    free_space = delegate("sensor.free_space", "The carved free space (observe_free_space).")
+    depth = delegate("sensor.depth", "The latest depth image (m, 0 = no return).")
+    candidate_views = delegate("actions.candidate_views", "(azimuth, elevation, radius) each.")
+    azimuth_range = delegate("actions.azimuth_range", "The continuous actions' (rad).")
+    elevation_range = delegate("actions.elevation_range", "The continuous actions' (rad).")
+    radius_range = delegate("actions.radius_range", "The continuous actions' (m).")
 
     def view_to_action(
         self, azimuth: float, elevation: float, radius: float, *, clip: bool = False
@@ -389,12 +318,6 @@ class ViewPlanningEnv(LiuxingEnv):
         if self.placed is None:
             raise RuntimeError("call reset() first: there is nothing to reconstruct")
         require_number("tau_fraction", tau_fraction, 1e-4, 1.0)
-        if "camera_locations" in kwargs:
-            raise TypeError(
-                "reconstruct() takes the camera locations from the episode's views; call "
-                "liuxing_envs.perception.reconstruct(env.unwrapped.map.points(), "
-                "camera_locations=...) to give others"
-            )
         return self.sensor.reconstruct(
             self.scene.stage.meshes[self.placed.name], self.placed, tau_fraction, save_dir, **kwargs
         )
@@ -437,46 +360,9 @@ class ViewPlanningEnv(LiuxingEnv):
     def _preview_points(self) -> np.ndarray:
         return self.sensor.preview_points(self.scene)
 
-    def _estimate_center(self, points: np.ndarray) -> np.ndarray:
-        if len(points) == 0:  # nothing seen: aim at the middle of the placement region
-            return np.array([*self.object_region.mean(axis=0), 0.05])
-        low, high = points.min(axis=0), points.max(axis=0)
-        return np.array([(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, high[2] / 2])
-
     def _observation(self) -> dict:
-        sensed, counted = self.sensor.observation(self.center), self.task.observation()
-        position, rotation = self.camera.pose(self.data)
-        obs = {
-            "depth": sensed["depth"],
-            "map": sensed["map"],
-            "view_history": counted["view_history"],
-            "camera_pose": np.concatenate(
-                [position - self.center, -rotation[:, 2], rotation[:, 1]]
-            ).astype(np.float32),
-            "budget": counted["budget"],
-        }
-        if "free_space" in sensed:
-            obs["free_space"] = sensed["free_space"]
-        if "coverage" in counted:
-            obs["coverage"] = counted["coverage"]
-        return obs
-
-    # Names benchmarks/coverage_ceiling.py and benchmarks/time_split.py reach for.
-    @property
-    def _observation_views(self):
-        return self.actions.observation_views
-
-    @property
-    def _stage(self):
-        return self.scene.stage
-
-    def _render_depth(self, rng: np.random.Generator | None) -> np.ndarray:
-        return self.scene.render_depth(rng)
-
-
-ViewPlanningEnv.__doc__ = ViewPlanningEnv.__doc__.replace(
-    "{arguments}", ViewPlanningSettings.markdown_table(V1).replace("\n", "\n    ")
-)
+        found = {**self.sensor.observation(self.scene, self.center), **self.task.observation()}
+        return {key: found[key] for key in OBSERVATION_KEYS if key in found}
 
 
 class ViewPlanningV0Env(ViewPlanningEnv):

@@ -20,7 +20,7 @@ import dataclasses
 
 import numpy as np
 
-from liuxing_envs.settings import Part, Settings, knob
+from liuxing_envs.settings import Part, Settings, knob, part
 from liuxing_envs.validation import (
     require_choice,
     require_int,
@@ -262,12 +262,12 @@ class ViewPlanningSettings(Settings):
 
     extra_keywords = ("render_mode",)
 
-    task: TaskSettings = dataclasses.field(default_factory=TaskSettings)
-    action: ViewActionSettings = dataclasses.field(default_factory=ViewActionSettings)
-    arm: MotionSettings = dataclasses.field(default_factory=MotionSettings)
-    scene: SceneSettings = dataclasses.field(default_factory=SceneSettings)
-    sensor: SensorSettings = dataclasses.field(default_factory=SensorSettings)
-    fusion: FusionSettings = dataclasses.field(default_factory=FusionSettings)
+    task: TaskSettings = part(TaskSettings)
+    action: ViewActionSettings = part(ViewActionSettings)
+    arm: MotionSettings = part(MotionSettings)
+    scene: SceneSettings = part(SceneSettings)
+    sensor: SensorSettings = part(SensorSettings)
+    fusion: FusionSettings = part(FusionSettings)
 
 
 #: ViewPlanning-v1: the reported results' and the shipped policies' configuration.

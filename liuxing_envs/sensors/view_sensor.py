@@ -1,6 +1,7 @@
 """ViewPlanning's sensor pipeline: a depth image from the wrist camera, back-projected to
 world points (less the arm's own), cropped to the workspace, fused into a voxel map, rays
-carved through a free-space grid, and the arrays the observation shows of them."""
+carved through a free-space grid, the view sphere's centre estimated from the first cloud,
+and the arrays the observation shows of them."""
 
 from __future__ import annotations
 
@@ -20,6 +21,15 @@ from liuxing_envs.sim.view_scene import WORKSPACE_LOWER, WORKSPACE_UPPER, ViewSc
 ARM_FILTER_MARGIN = 0.003  # m
 #: Ground-truth surface samples for reconstruction metrics (about 4 * area / τ² are needed).
 METRIC_SAMPLES = 100_000
+
+
+def estimate_center(points: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """The view sphere's centre from the first image's cloud: its bounding box's centre at
+    half its height; the middle of the placement ``region`` where nothing was seen."""
+    if len(points) == 0:
+        return np.array([*region.mean(axis=0), 0.05])
+    low, high = points.min(axis=0), points.max(axis=0)
+    return np.array([(low[0] + high[0]) / 2, (low[1] + high[1]) / 2, high[2] / 2])
 
 
 class ViewSensor:
@@ -79,7 +89,14 @@ class ViewSensor:
                     **kwargs) -> tuple[Reconstruction, dict]:  # fmt: skip
         """The fused cloud meshed (:func:`liuxing_envs.perception.reconstruction.reconstruct`
         takes ``kwargs``) and scored against dense samples of the placed ``mesh``'s whole
-        surface with τ = ``tau_fraction`` × its bounding-box diagonal."""
+        surface with τ = ``tau_fraction`` × its bounding-box diagonal. The camera locations are
+        the episode's views'."""
+        if "camera_locations" in kwargs:
+            raise TypeError(
+                "reconstruct() takes the camera locations from the episode's views; call "
+                "liuxing_envs.perception.reconstruct(env.unwrapped.map.points(), "
+                "camera_locations=...) to give others"
+            )
         record = reconstruct(
             self.map.points(), camera_locations=np.array(self.camera_locations), **kwargs
         )
@@ -105,18 +122,26 @@ class ViewSensor:
         found = {
             "depth": spaces.Box(0, 255, (1, side, side), dtype=np.uint8),
             "map": spaces.Box(0.0, 1.0, (cells,), dtype=np.float32),
+            "camera_pose": spaces.Box(-2.0, 2.0, (9,), dtype=np.float32),
         }
         if self.free_space is not None:
             found["free_space"] = spaces.Box(0.0, 1.0, (cells,), dtype=np.float32)
         return found
 
-    def observation(self, center: np.ndarray) -> dict[str, np.ndarray]:
-        """The depth image as uint8, the fused map's occupancy about ``center`` and, when
-        observed, the free space."""
+    def observation(self, scene: ViewScene, center: np.ndarray) -> dict[str, np.ndarray]:
+        """The depth image as uint8, the fused map's occupancy about ``center``, the camera's
+        pose (position from ``center``, optical axis, image-up axis) and, when observed, the
+        free space."""
         scaled = np.clip(self.depth / self.depth_obs_range, 0.0, 1.0)
         depth = np.round(255 * scaled).astype(np.uint8)
         occupied = self.map.occupancy_grid(center, self.map_extent, self.map_grid, dtype=np.float32)
-        obs = {"depth": depth[None], "map": occupied.flatten()}
+        position, rotation = scene.camera.pose(scene.data)
+        pose = np.concatenate([position - center, -rotation[:, 2], rotation[:, 1]])
+        obs = {
+            "depth": depth[None],
+            "map": occupied.flatten(),
+            "camera_pose": pose.astype(np.float32),
+        }
         if self.free_space is not None:
             obs["free_space"] = self.free_space.free(occupied).astype(np.float32).ravel()
         return obs
