@@ -51,8 +51,10 @@ def _view(backend: str, motion: str, resolution: int, steps: int = 400) -> Confi
     return Config(VIEW_PLANNING, kwargs, steps)
 
 
-def _grasp(obs_mode: str, backend: str, steps: int) -> Config:
-    return Config(GRASP, {"obs_mode": obs_mode, "depth_backend": backend}, steps)
+def _grasp(obs_mode: str, backend: str | None, steps: int) -> Config:
+    """A grasp configuration; state observations render nothing, so they take no backend."""
+    backend_kwargs = {} if backend is None else {"depth_backend": backend}
+    return Config(GRASP, {"obs_mode": obs_mode, **backend_kwargs}, steps)
 
 
 #: The default mode of ViewPlanning-v1: kinematic motion at 64x64, ray-cast depth. The gl and
@@ -60,7 +62,7 @@ def _grasp(obs_mode: str, backend: str, steps: int) -> Config:
 #: beside it.
 VIEW_DEFAULT = _view("raycast", "kinematic", 64)
 VIEW_DEFAULT_GL = _view("gl", "kinematic", 64)
-GRASP_STATE = _grasp("state", "gl", 2000)
+GRASP_STATE = _grasp("state", None, 2000)
 CONFIGS = (
     VIEW_DEFAULT,
     VIEW_DEFAULT_GL,

@@ -101,7 +101,7 @@ SPLIT_CONFIGS = (
     Config(VIEW_PLANNING, {"depth_backend": "raycast", "motion": "kinematic", "resolution": 64}),
     Config(VIEW_PLANNING, {"depth_backend": "gl", "motion": "kinematic", "resolution": 64}),
     Config(VIEW_PLANNING, {"depth_backend": "raycast", "motion": "dynamic", "resolution": 64}),
-    Config(GRASP, {"obs_mode": "state", "depth_backend": "gl"}),
+    Config(GRASP, {"obs_mode": "state"}),
     Config(GRASP, {"obs_mode": "depth", "depth_backend": "raycast"}),
     Config(GRASP, {"obs_mode": "rgbd", "depth_backend": "gl"}),
 )

@@ -99,9 +99,17 @@ class Settings:
         return tuple(cls.knobs())
 
     @classmethod
-    def from_flat(cls, given: Mapping[str, Any], defaults: Self | None = None) -> Self:
+    def from_flat(
+        cls,
+        given: Mapping[str, Any],
+        defaults: Self | None = None,
+        *,
+        refuse_inapplicable: bool = True,
+    ) -> Self:
         """Settings from flat keyword values over ``defaults`` (the dataclasses' own defaults
-        if None). Unknown names, bad values and inapplicable settings are refused by name."""
+        if None). Unknown names and bad values are refused by name, and so are inapplicable
+        settings unless ``refuse_inapplicable`` is False (a deprecated version that always
+        took them and left them unused)."""
         knobs = cls.knobs()
         for name in given:
             if name not in knobs:
@@ -111,7 +119,8 @@ class Settings:
                     f"allowed: {', '.join(allowed)}"
                 )
         settings = (cls() if defaults is None else defaults).replaced(**given)
-        settings.refuse_inapplicable(given)
+        if refuse_inapplicable:
+            settings.refuse_inapplicable(given)
         return settings
 
     def flat(self) -> dict[str, Any]:

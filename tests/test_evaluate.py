@@ -145,8 +145,11 @@ def test_view_planning_report_is_paired_and_its_numbers_are_sound(tmp_path):
         str(SHIPPED_VIEW_POLICY),
         *("--baselines", "four-view,uniform,greedy-oracle", "--episodes", "3"),
         *("--reconstruct-episodes", "1", "--save-reconstructions", "1", "--out", str(out)),
+        *("--video", "--video-episodes", "1"),
     )
     assert "four-view" in result.stdout
+    for label in ("ppo", "four-view", "uniform", "greedy-oracle"):
+        assert (out / "videos" / f"{label}.mp4").stat().st_size > 10_000
     report = read_report(out)
     section = report["environments"]["ViewPlanning-v1"]
     labels = [c["label"] for c in section["contestants"]]
@@ -198,7 +201,7 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
         "evaluate.py",
         str(grasp_run),
         *("--baselines", "scripted-grasp,squeeze", "--episodes", "2", "--out", str(out)),
-        *("--instrument-set", "train", "--video", "--video-episodes", "1"),
+        *("--instrument-set", "train"),
     )
     report = read_report(out)
     section = report["environments"]["InstrumentGrasp-v1"]
@@ -230,8 +233,21 @@ def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_pat
     assert scripted["max_lift"]["mean"] >= 0.10
     for figure in ("force_traces.png", "grasp_outcomes.png", "peak_forces.png"):
         assert (out / figure).stat().st_size > 10_000
-    video = out / "videos" / "scripted-grasp.mp4"
-    assert video.stat().st_size > 10_000
+
+
+def test_a_grasp_video_shows_every_step_of_its_episodes(tmp_path):
+    import cv2
+
+    from agents.contestants import baseline_contestant
+    from agents.video import record_videos
+
+    scripted = baseline_contestant("scripted-grasp", "InstrumentGrasp-v1", {"episode_steps": 12})
+    (path,) = record_videos([scripted], seeds=[0, 1], out=tmp_path)
+    assert path == tmp_path / "videos" / "scripted-grasp.mp4"
+    video = cv2.VideoCapture(str(path))
+    frames = int(video.get(cv2.CAP_PROP_FRAME_COUNT))
+    video.release()
+    assert frames == 2 * (12 + 1)  # each episode's start and its steps
 
 
 @pytest.mark.slow

@@ -99,6 +99,12 @@ def test_v0_warns_naming_v1_and_keeps_v0s_defaults():
         # The guard's own rule comes first: an opening gripper outruns the finger guard.
         ("InstrumentGrasp-v1", {"gripper_control": "opening", "max_grip_force": 3.0},
          r"approach_guard_fingers=True cannot brake gripper_control='opening'"),
+        # The wrist images' settings with state observations.
+        ("InstrumentGrasp-v1", {"depth_backend": "gl"},
+         r"depth_backend applies only with obs_mode='depth' or obs_mode='rgbd'; with "
+         r"obs_mode='state' it would be ignored"),
+        ("InstrumentGrasp-v1", {"resolution": 32},
+         r"resolution applies only with obs_mode='depth' or obs_mode='rgbd'"),
     ],
 )  # fmt: skip
 def test_a_setting_of_another_mode_is_refused_by_name(env_id, kwargs, message):
@@ -152,3 +158,68 @@ def test_the_signature_spells_out_the_settings_with_each_versions_defaults():
         keywords = {n: p.default for n, p in parameters.items() if p.kind is p.KEYWORD_ONLY}
         assert tuple(keywords) == env_class.keyword_names()
         assert keywords == {**defaults.flat(), "render_mode": None}
+
+
+def test_v0_takes_another_modes_settings_and_ignores_them_as_before():
+    """v0 ids behave as before v1: a setting its mode leaves unused is taken, not refused."""
+
+    def rollout(**kwargs):
+        with pytest.warns(DeprecationWarning):
+            env = gym.make("InstrumentGrasp-v0", **FAST, **kwargs)
+        env.action_space.seed(1)
+        trace = [env.reset(seed=2)[0]]
+        trace += [env.step(env.action_space.sample())[:4] for _ in range(15)]
+        env.close()
+        return trace
+
+    ignored = {"max_grip_force": 3.0, "max_gripper_delta": 0.002, "max_joint_delta": 0.1,
+               "depth_backend": "embree", "resolution": 32}  # fmt: skip
+    for mine, theirs in zip(rollout(**ignored), rollout(), strict=True):
+        np.testing.assert_equal(mine, theirs)
+
+
+GUARD_OFF = "approach_lead_limit=None, approach_lead_slope=0.0, approach_guard_fingers=False"
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"approach_lead_limit": None},
+     {"approach_lead_limit": None, "approach_lead_slope": 0.0}],
+    ids=["guard-on", "limit-off", "limit-and-slope-off"],
+)  # fmt: skip
+def test_turning_the_guard_off_for_joint_delta_names_every_setting_of_it(kwargs):
+    """Each message on the way names all that turns the guard off: none contradicts another."""
+    with pytest.raises(ValueError) as refused:
+        gym.make("InstrumentGrasp-v1", **FAST, controller="joint_delta", **kwargs)
+    assert GUARD_OFF in str(refused.value) and "InstrumentGraspUnguarded-v1" in str(refused.value)
+    # As the messages say: the whole guard off.
+    env = gym.make("InstrumentGrasp-v1", **FAST, controller="joint_delta",
+                   approach_lead_limit=None, approach_lead_slope=0.0,
+                   approach_guard_fingers=False)  # fmt: skip
+    assert env.action_space.shape == (7,)
+    env.close()
+
+
+def test_an_opening_gripper_is_told_it_may_leave_the_fingers_unguarded():
+    with pytest.raises(ValueError, match=r"cannot brake gripper_control='opening'.*or leave the "
+                       r"fingers unguarded with approach_guard_fingers=False"):  # fmt: skip
+        gym.make("InstrumentGrasp-v1", **FAST, gripper_control="opening")
+    env = gym.make("InstrumentGrasp-v1", **FAST, gripper_control="opening",
+                   approach_guard_fingers=False)  # fmt: skip
+    assert env.unwrapped.approach_lead_limit == V1.safety.approach_lead_limit  # the arm's guard
+    env.close()
+
+
+@pytest.mark.parametrize("name", ["hold_time", "max_grip_force", "obs_mode"])
+def test_a_setting_assigned_on_the_env_is_refused(name):
+    """Its parts were built from the settings: an assigned value would read back and do nothing."""
+    env = gym.make("InstrumentGrasp-v1", **FAST)
+    before = getattr(env.unwrapped, name)
+    message = rf"{name} is a setting of InstrumentGraspEnv, fixed when the env is made "
+    with pytest.raises(
+        AttributeError, match=message + rf".*gym.make\('InstrumentGrasp-v1', {name}="
+    ):
+        setattr(env.unwrapped, name, 2.0)
+    assert getattr(env.unwrapped, name) == before == env.unwrapped.settings.flat()[name]
+    env.unwrapped.render_mode = None  # what is no setting is assigned as before
+    env.close()

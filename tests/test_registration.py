@@ -7,8 +7,10 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.envs.registration import load_env_creator
 
 import liuxing_envs
+from liuxing_envs.envs.instrument_grasp import InstrumentGraspEnv
 from liuxing_envs.registration import BY_ID, REGISTRATIONS, family
 
 #: Small scenes, so that every id is quick to make.
@@ -84,3 +86,52 @@ def test_an_unknown_id_is_named_with_the_closest_registered_one():
     ):
         family("InstrumentGrasp-v2")
     assert set(liuxing_envs.ENV_IDS) == set(BY_ID)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kwargs", "message"),
+    [
+        ("ViewPlanningDiscrete-v1", {"action_mode": "continuous"},
+         r"ViewPlanningDiscrete-v1 is defined by action_mode='discrete'; for "
+         r"action_mode='continuous' make ViewPlanning-v1$"),
+        ("InstrumentGraspDepth-v1", {"obs_mode": "state"},
+         r"InstrumentGraspDepth-v1 is defined by obs_mode='depth'; for obs_mode='state' make "
+         r"InstrumentGrasp-v1$"),
+        ("InstrumentGraspDepth-v1", {"obs_mode": "rgbd"},
+         r"for obs_mode='rgbd' make InstrumentGraspRGBD-v1$"),
+        ("InstrumentGraspUnguarded-v1", {"approach_lead_limit": 0.001},
+         r"defined by approach_lead_limit=None, approach_lead_slope=0.0, "
+         r"approach_guard_fingers=False; for approach_lead_limit=0.001 make InstrumentGrasp-v1 "
+         r"with approach_lead_limit=0.001$"),
+    ],
+)  # fmt: skip
+def test_a_variant_refuses_a_keyword_that_changes_what_defines_it(env_id, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        gym.make(env_id, **FAST[family(env_id)], **kwargs)
+
+
+def test_a_variant_takes_its_own_settings_again_and_any_other_keyword():
+    env, _ = make_quietly("ViewPlanningDiscrete-v1", action_mode="discrete", view_budget=2)
+    try:
+        assert env.spec.id == "ViewPlanningDiscrete-v1"
+        assert env.action_space == gym.spaces.Discrete(33) and env.unwrapped.view_budget == 2
+        env.reset(seed=0)
+        assert [env.step(0)[2] for _ in range(2)] == [False, True]
+    finally:
+        env.close()
+    # The tools that read the entry point's keywords and episode length see the env class's.
+    creator = load_env_creator(gym.spec("InstrumentGraspRGBD-v1").entry_point)
+    assert creator.keyword_names() == InstrumentGraspEnv.keyword_names()
+    assert creator.episode_length_setting == "episode_steps"
+
+
+def test_a_variant_makes_async_vector_envs_in_spawned_workers():
+    envs = gym.make_vec("InstrumentGraspDepth-v1", num_envs=2, vectorization_mode="async",
+                        vector_kwargs={"context": "spawn"}, **FAST["InstrumentGrasp"])  # fmt: skip
+    try:
+        observations, _ = envs.reset(seed=0)
+        assert observations["depth"].shape == (2, 1, 64, 64) and "instrument" not in observations
+        envs.step(np.zeros((2, 5), np.float32))
+        assert envs.spec.id == "InstrumentGraspDepth-v1"
+    finally:
+        envs.close()

@@ -4,6 +4,10 @@ import dataclasses
 
 import pytest
 
+from liuxing_envs.envs.instrument_grasp_settings import V0 as GRASP_V0
+from liuxing_envs.envs.instrument_grasp_settings import V1 as GRASP_V1
+from liuxing_envs.envs.view_planning_settings import V0 as VIEW_V0
+from liuxing_envs.envs.view_planning_settings import V1 as VIEW_V1
 from liuxing_envs.settings import Part, Settings, knob
 from liuxing_envs.validation import require_choice, require_number
 
@@ -87,3 +91,27 @@ def test_defaults_come_from_one_place_and_a_version_changes_them_as_a_value():
 def test_a_mutable_default_is_refused_when_declared():
     with pytest.raises(TypeError, match="immutable"):
         knob([1, 2], "a list")
+
+
+def test_a_deprecated_version_may_take_an_inapplicable_setting_and_leave_it_unused():
+    # v0 ids always took another mode's settings and ignored them; their values are checked.
+    kept = Toy.from_flat(
+        {"gripper_control": "delta", "max_grip_force": 3.5}, refuse_inapplicable=False
+    )
+    assert kept.gripper.gripper_control == "delta" and kept.gripper.max_grip_force == 3.5
+    with pytest.raises(ValueError, match=r"max_grip_force must be a number in \[0.1, 40.0\]"):
+        Toy.from_flat({"gripper_control": "delta", "max_grip_force": 400.0},
+                      refuse_inapplicable=False)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "defaults",
+    [GRASP_V0, GRASP_V1, VIEW_V0, VIEW_V1],
+    ids=["grasp-v0", "grasp-v1", "view-v0", "view-v1"],
+)
+def test_every_float_setting_defaults_to_a_float(defaults):
+    """A float knob with an int default puts ints into info (``reward_failure`` was -50)."""
+    values = defaults.flat()
+    for name, (_, field) in type(defaults).knobs().items():
+        if str(field.type).startswith("float"):
+            assert values[name] is None or type(values[name]) is float, (name, values[name])

@@ -750,30 +750,32 @@ def test_a_run_initialised_from_a_trained_run_starts_from_its_policy(tmp_path, c
 
     # A buffer filled by another number of envs, or a damaged one, is refused before the new
     # run folder is made.
+    def refusal(*args: str) -> str:
+        """train.py's message for a start it refuses before making the run folder."""
+        capsys.readouterr()
+        with pytest.raises(SystemExit) as stop:
+            train.main([*args, "--init-from", str(source)])
+        assert stop.value.code == 2
+        return capsys.readouterr().err
+
     wide = quick_args("InstrumentGrasp-v1", "sac", tmp_path / "wide", 32, n_envs=2)
-    result = run_train(*wide, "--init-from", str(source), "--init-replay-buffer", check=False)
-    assert result.returncode == 2
-    assert "was filled by 1 env(s); this run has --n-envs 2" in result.stderr
+    message = refusal(*wide, "--init-replay-buffer")
+    assert "was filled by 1 env(s); this run has --n-envs 2" in message
     assert not (tmp_path / "wide").exists()
     buffer = run_folder.checkpoint_paths(source, 128)["replay_buffer"]
     buffer.write_bytes(buffer.read_bytes()[:1000])
     broken = quick_args("InstrumentGrasp-v1", "sac", tmp_path / "broken", 32, n_envs=1)
-    result = run_train(*broken, "--init-from", str(source), "--init-replay-buffer", check=False)
-    assert result.returncode == 2
-    assert f"{str(buffer)!r} is not a readable replay buffer" in result.stderr
+    assert f"{str(buffer)!r} is not a readable replay buffer" in refusal(
+        *broken, "--init-replay-buffer"
+    )
     assert not (tmp_path / "broken").exists()
 
     # Another algorithm, or another observation space, is refused with the reason.
-    with pytest.raises(SystemExit):
-        train.main(["--env", "InstrumentGrasp-v1", "--algo", "ppo", "--init-from", str(source)])
-    assert "is a sac run on InstrumentGrasp-v1; this run is ppo" in capsys.readouterr().err
-    result = run_train(
-        *quick_args("InstrumentGrasp-v1", "sac", tmp_path / "depth", 32, n_envs=1),
-        *("--init-from", str(source), "--env-kwargs", "obs_mode=depth"),
-        check=False,
-    )
-    assert result.returncode == 2
-    assert "has the observation_space" in result.stderr and "different env kwargs" in result.stderr
+    message = refusal("--env", "InstrumentGrasp-v1", "--algo", "ppo")
+    assert "is a sac run on InstrumentGrasp-v1; this run is ppo" in message
+    depth = quick_args("InstrumentGrasp-v1", "sac", tmp_path / "depth", 32, n_envs=1)
+    message = refusal(*depth, "--env-kwargs", "obs_mode=depth")
+    assert "has the observation_space" in message and "different env kwargs" in message
     assert not (tmp_path / "depth").exists()  # so the corrected command may reuse --run-dir
 
 

@@ -4,9 +4,12 @@ from them, v0 and v1 told apart by value, and the rules refused by name."""
 import subprocess
 import sys
 
+import gymnasium as gym
+import numpy as np
 import pytest
 import yaml
 
+import liuxing_envs  # noqa: F401  (registers the ids)
 from liuxing_envs.envs.view_planning import ViewPlanningEnv, ViewPlanningV0Env
 from liuxing_envs.envs.view_planning_settings import (
     DEPTH_BACKENDS,
@@ -74,3 +77,31 @@ def test_values_given_as_yaml_gives_them_are_kept_in_normal_form():
     assert settings.sensor.depth_noise == camera.DepthNoise(sigma_base=0.002)
     with pytest.raises(ValueError, match="depth_noise has no setting 'sigma'"):
         V1.changed(depth_noise={"sigma": 0.1})
+
+
+SMALL = {"objects": ["box"], "scales": [1.0], "coverage_samples": 512}
+
+
+def test_v0_takes_continuous_ranges_with_discrete_actions_and_ignores_them_as_before():
+    def rollout(**kwargs):
+        with pytest.warns(DeprecationWarning):
+            env = gym.make("ViewPlanning-v0", **SMALL, action_mode="discrete", **kwargs)
+        trace = [env.reset(seed=1)[0]] + [env.step(action)[:4] for action in (5, 32)]
+        env.close()
+        return trace
+
+    ignored = rollout(azimuth_range_deg=(0.0, 90.0), elevation_range_deg=(30.0, 60.0))
+    for mine, theirs in zip(ignored, rollout(), strict=True):
+        np.testing.assert_equal(mine, theirs)
+
+
+def test_a_setting_assigned_on_the_env_is_refused_and_the_budget_kept():
+    env = ViewPlanningEnv(**SMALL)
+    message = r"view_budget is a setting of ViewPlanningEnv, fixed when the env is made "
+    with pytest.raises(AttributeError, match=message + r".*ViewPlanningEnv\(view_budget=8, "):
+        env.view_budget = 8
+    assert env.view_budget == env.settings.task.view_budget == 4
+    env.reset(seed=0)
+    ends = [env.step(np.zeros(3, np.float32))[2] for _ in range(4)]
+    assert ends == [False, False, False, True]
+    env.close()

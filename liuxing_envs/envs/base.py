@@ -41,6 +41,9 @@ class LiuxingEnv(gym.Env):
     default_settings: ClassVar[Settings | None] = None
     #: A deprecated version's (old id, new id, what the new one changes): making it warns.
     deprecation: ClassVar[tuple[str, str, str] | None] = None
+    #: Whether a setting given under a mode that leaves it unused is refused by name (False
+    #: only for the deprecated v0 ids, which always took such settings and ignored them).
+    refuses_inapplicable: ClassVar[bool] = True
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -92,6 +95,14 @@ class LiuxingEnv(gym.Env):
         )
 
     @classmethod
+    def settings_from(cls, given: dict) -> Settings:
+        """The settings of the keywords ``given`` over this class's defaults, checked (an
+        inapplicable setting refused as :attr:`refuses_inapplicable` says)."""
+        return cls.settings_type.from_flat(
+            given, defaults=cls.default_settings, refuse_inapplicable=cls.refuses_inapplicable
+        )
+
+    @classmethod
     def keyword_names(cls) -> tuple[str, ...]:
         """The settings ``__init__`` takes (``gym.make(id, **settings)``), in order."""
         if cls.settings_type is not None:
@@ -104,8 +115,10 @@ class LiuxingEnv(gym.Env):
 
     @property
     def episode_length(self) -> int:
-        """How many steps an episode runs at most (the env ends it there itself, unless a
-        deprecated id's registered time limit is shorter)."""
+        """The value of :attr:`episode_length_setting`: the v1 envs end every episode there
+        themselves. A deprecated v0 id's registered time limit ends them instead where it is
+        shorter (``ViewPlanning-v0``'s 4 steps) and, for ``InstrumentGrasp-v0``, whose env never
+        truncates, always (200 steps)."""
         return self.settings.flat()[self.episode_length_setting]
 
     def __getattr__(self, name: str):
@@ -115,6 +128,20 @@ class LiuxingEnv(gym.Env):
         if found is None:
             raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
         return getattr(getattr(settings, found[0]), name)
+
+    def __setattr__(self, name: str, value) -> None:
+        """Refuse a setting assigned by its flat name once the env has its settings: the parts
+        were built from them, so ``env.view_budget = 8`` would read 8 and change nothing."""
+        settings = self.__dict__.get("settings")
+        if settings is not None and name in settings.knobs():
+            spec = self.__dict__.get("spec")
+            maker = f"gym.make({spec.id!r}, " if spec is not None else f"{type(self).__name__}("
+            raise AttributeError(
+                f"{name} is a setting of {type(self).__name__}, fixed when the env is made "
+                f"(its parts are built from it); make a new env with it: "
+                f"{maker}{name}={value!r}, ...)"
+            )
+        super().__setattr__(name, value)
 
     # ------------------------------------------------------------------ stepping
     #: Whether ``step()`` may run: set by a successful ``reset()``, cleared at an episode's end.

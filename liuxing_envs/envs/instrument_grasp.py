@@ -184,9 +184,7 @@ class InstrumentGraspEnv(LiuxingEnv):
 
     def __init__(self, *, render_mode: str | None = None, **settings) -> None:
         require_choice("render_mode", render_mode, (None, "rgb_array"))
-        self.settings = InstrumentGraspSettings.from_flat(
-            settings, defaults=type(self).default_settings
-        )
+        self.settings = self.settings_from(settings)
         sensors, arm, timing = self.settings.sensors, self.settings.arm, self.settings.timing
         obs_mode, depth_backend = sensors.obs_mode, sensors.depth_backend
         # Without OpenGL MuJoCo's renderers are made without complaint and fail when first
@@ -374,10 +372,12 @@ class InstrumentGraspEnv(LiuxingEnv):
 class InstrumentGraspV0Env(InstrumentGraspEnv):
     """``InstrumentGrasp-v0``: deprecated, kept for one release so old run folders evaluate.
     v0's defaults (:data:`~liuxing_envs.envs.instrument_grasp_settings.V0`); its episodes end
-    only at the registered time limit (200 steps), never at ``episode_steps``."""
+    only at the registered time limit (200 steps), never at ``episode_steps``; a setting its
+    mode leaves unused is taken and ignored, as v0 always did."""
 
     default_settings = V0
     truncates_at_episode_steps = False
+    refuses_inapplicable = False  # v0 took another mode's settings and ignored them
     deprecation = (
         "InstrumentGrasp-v0",
         "InstrumentGrasp-v1",

@@ -37,6 +37,16 @@ MIN_GRIPPER_DELTA = 1e-4
 MIN_GRIP_FORCE = 0.1
 #: At 1 the set-point may reach the instrument's surface: no braking at all.
 MAX_APPROACH_LEAD_SLOPE = 1.0
+#: The approach guard off: every setting of it, as the messages that need it off name them.
+GUARD_OFF = (
+    "approach_lead_limit=None, approach_lead_slope=0.0, approach_guard_fingers=False (as "
+    "InstrumentGraspUnguarded-v1 does)"
+)
+#: The end of a message refusing part of the guard without approach_lead_limit, which turns it on.
+GUARD_ON_OR_OFF = (
+    "(the lead allowed at a touch, m; controller='ee_delta' only), or turn the whole guard off "
+    f"with {GUARD_OFF}"
+)
 #: Allowed factors of mass_range and friction_range.
 SCALE_LIMITS = (0.1, 10.0)
 
@@ -191,15 +201,13 @@ class Safety(Part):
         elif self.approach_lead_slope:
             raise ValueError(
                 f"approach_lead_slope={self.approach_lead_slope} raises approach_lead_limit "
-                "with a pad's gap; set approach_lead_limit too (the lead allowed at a touch, m; "
-                "controller='ee_delta' only)"
+                f"with a pad's gap; set approach_lead_limit too {GUARD_ON_OR_OFF}"
             )
         require_choice("approach_guard_fingers", self.approach_guard_fingers, (False, True))
         if self.approach_guard_fingers and self.approach_lead_limit is None:
             raise ValueError(
                 "approach_guard_fingers=True widens the approach guard, which "
-                "approach_lead_limit turns on; set approach_lead_limit too (the lead allowed at "
-                "a touch, m; controller='ee_delta' only)"
+                f"approach_lead_limit turns on; set approach_lead_limit too {GUARD_ON_OR_OFF}"
             )
 
     @property
@@ -230,7 +238,7 @@ class GraspTask(Part):
     )
     force_penalty: float = knob(2.0, "Reward per newton a pad's peak is over force_limit.")
     impact_penalty: float = knob(0.05, "Reward per newton the impact is over impact_limit.")
-    failure_penalty: float = knob(50, "Reward of a protective stop.")
+    failure_penalty: float = knob(50.0, "Reward of a protective stop.")
     approach_penalty: float = knob(
         0.0, "Reward per metre the set-point moves a near pad beyond approach_allowance (0: off)."
     )
@@ -307,6 +315,10 @@ def _instrument_names(instruments) -> tuple[str, ...]:
     return names
 
 
+#: The observation modes with wrist images.
+IMAGES = {"obs_mode": ("depth", "rgbd")}
+
+
 @dataclasses.dataclass(frozen=True)
 class GraspSensors(Part):
     """What the policy observes."""
@@ -316,11 +328,12 @@ class GraspSensors(Part):
         "'state': proprioception, pad forces and the PRIVILEGED instrument pose; 'depth': "
         "the wrist depth image instead of the pose; 'rgbd': depth and colour.",
     )
-    resolution: int = knob(64, "Side of the square wrist images.", unit="px")
+    resolution: int = knob(64, "Side of the square wrist images.", unit="px", only_with=IMAGES)
     depth_backend: str = knob(
         "raycast",
         "How depth is rendered: 'raycast' (the same image on every machine), 'gl', 'embree' "
         "or 'auto'.",
+        only_with=IMAGES,
     )
 
     def check(self) -> None:
@@ -346,8 +359,8 @@ class InstrumentGraspSettings(Settings):
     def check(self) -> None:
         if self.safety.approach_lead_limit is not None and self.arm.controller != "ee_delta":
             raise ValueError(
-                "approach_lead_limit slows ee_delta steps; with controller='joint_delta' "
-                "it must be None"
+                "approach_lead_limit slows ee_delta steps; with controller='joint_delta' it must "
+                f"be None, and the rest of the approach guard off with it: {GUARD_OFF}"
             )
         if self.safety.approach_guard_fingers:
             self._require_guardable_fingers()
@@ -362,7 +375,8 @@ class InstrumentGraspSettings(Settings):
             raise ValueError(
                 "approach_guard_fingers=True cannot brake gripper_control='opening': its "
                 "position servos close the whole stroke within one control step (up to about "
-                "2 m/s); use gripper_control='force' or 'delta'"
+                "2 m/s); use gripper_control='force' or 'delta', or leave the fingers unguarded "
+                "with approach_guard_fingers=False (the arm's guard stays on)"
             )
         allowance = self.safety.lead_allowed_at_entry
         name, value, unit, minimum, per_unit, travel_of = self.gripper.closing_per_step(
@@ -384,7 +398,7 @@ class InstrumentGraspSettings(Settings):
 
 
 #: ``InstrumentGrasp-v1``: the task of the shipped grasp policy
-#: (``policies/InstrumentGrasp-v0/sac/config.yml``), depth ray-cast on every machine.
+#: (``policies/InstrumentGrasp-v1/sac/config.yml``), depth ray-cast on every machine.
 V1 = InstrumentGraspSettings()
 #: ``InstrumentGrasp-v0`` (deprecated): a stiff arm with the model's servo damping, the
 #: gripper servoing to an opening, gentler penalties, no guard.

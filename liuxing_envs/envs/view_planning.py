@@ -146,7 +146,7 @@ class ViewPlanningEnv(LiuxingEnv):
     rebuilt_on_copy = ("scene",)
 
     def __init__(self, *, render_mode: str | None = None, **settings) -> None:
-        self.settings = ViewPlanningSettings.from_flat(settings, defaults=self.default_settings)
+        self.settings = self.settings_from(settings)
         task, sensor, scene = self.settings.task, self.settings.sensor, self.settings.scene
         require_choice("render_mode", render_mode, (None, *self.metadata["render_modes"]))
         # Without OpenGL these would fail at the first image with an AttributeError.
@@ -164,8 +164,6 @@ class ViewPlanningEnv(LiuxingEnv):
         self.intrinsics = CameraIntrinsics(width=sensor.resolution, height=sensor.resolution)
         meshes = load_objects(scene.object_set, scene.objects)
         self.placements = Placements(meshes, scene, self.settings.fusion.table_crop_height)
-        self.object_region = self.placements.region
-        self.scales = self.placements.scales
         self.object_names = self.placements.object_names
         check_observable(meshes, self.scales, self._coverage_set_up())
         self.scene = self._build_scene(meshes)
@@ -290,6 +288,8 @@ class ViewPlanningEnv(LiuxingEnv):
     map = delegate("sensor.map", "The fused voxel map of the episode.")
     free_space = delegate("sensor.free_space", "The carved free space (observe_free_space).")
     depth = delegate("sensor.depth", "The latest depth image (m, 0 = no return).")
+    object_region = delegate("placements.region", "Where the object's base centre is drawn (m).")
+    scales = delegate("placements.scales", "The object scales a reset draws from.")
     candidate_views = delegate("actions.candidate_views", "(azimuth, elevation, radius) each.")
     azimuth_range = delegate("actions.azimuth_range", "The continuous actions' (rad).")
     elevation_range = delegate("actions.elevation_range", "The continuous actions' (rad).")
@@ -368,9 +368,11 @@ class ViewPlanningEnv(LiuxingEnv):
 class ViewPlanningV0Env(ViewPlanningEnv):
     """``ViewPlanning-v0``: deprecated, kept for one release so old run folders evaluate.
     Its depth backend is ``"auto"`` (OpenGL where it works); its registered time limit of 4
-    steps cuts a larger ``view_budget`` short."""
+    steps cuts a larger ``view_budget`` short; a setting its mode leaves unused is taken and
+    ignored, as v0 always did."""
 
     default_settings = V0
+    refuses_inapplicable = False  # v0 took another mode's settings and ignored them
     deprecation = (
         "ViewPlanning-v0",
         "ViewPlanning-v1",

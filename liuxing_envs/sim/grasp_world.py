@@ -101,12 +101,8 @@ class GraspWorld:
         self._nominal_inertia = model.body_inertia[self.body].copy()
         self._friction_geoms = self._friction_partners()
         self._nominal_friction = model.geom_friction[self._friction_geoms].copy()
-        self.arm_actuators = np.array(
-            [
-                model.actuator(n).id
-                for n in ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
-            ]
-        )
+        #: The arm servos' actuator ids, base to wrist (the arm's own).
+        self.arm_actuators = self.arm.actuator_ids
         # A softer servo keeps its damping ratio: kp scales, kv with its square root.
         model.actuator_gainprm[self.arm_actuators, 0] *= arm_stiffness
         model.actuator_biasprm[self.arm_actuators, 1] *= arm_stiffness
