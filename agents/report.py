@@ -141,7 +141,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     for problem in replace_earlier_files(out, earlier_files):
         print(f"warning: {problem}", file=sys.stderr)
     _write_report(report, out, source)
-    figures = _figures(report, out, settings)
+    figures = write_figures(report, out, settings)
     if settings.video_episodes:
         figures["videos"] = [
             str(path.relative_to(out))
@@ -423,7 +423,8 @@ def _environment_section(env_id: str, results: list[dict]) -> dict:
 
 
 # ---------------------------------------------------------------------- figures
-def _figures(report: dict, out: Path, settings: Settings) -> dict:
+def write_figures(report: dict, out: Path, settings: Settings) -> dict:
+    """The report's figures under ``out``, by name (the report links them)."""
     figures: dict = {}
     for env_id, section in report["environments"].items():
         results = section["contestants"]

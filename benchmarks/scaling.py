@@ -52,7 +52,8 @@ WORKERS = (1, 2, 4)
 KINDS = ("single", "gymnasium-async", "sb3-subproc")
 
 
-def _vector_env(config: Config, kind: str, workers: int):
+def vector_env(config: Config, kind: str, workers: int):
+    """``workers`` envs of ``config`` in a vector env of ``kind`` (see ``KINDS``)."""
     if kind == "gymnasium-async":
         import liuxing_envs  # noqa: F401
 
@@ -73,7 +74,7 @@ def _subproc_vec_env(env_fns):
     return SubprocVecEnv(env_fns)
 
 
-def _mean_slowest(times: np.ndarray, n: int) -> float:
+def mean_slowest(times: np.ndarray, n: int) -> float:
     """Expected maximum of ``n`` independent draws from the empirical distribution
     ``times``: exact, from its order statistics, so the same times give the same figure."""
     ordered = np.sort(times)
@@ -131,12 +132,12 @@ def ceilings_from_times(
     for n in workers:
         if in_phase:  # each phase weighted by its steps (the last episode may be cut short)
             weighted = (
-                np.count_nonzero(phases == p) * _mean_slowest(times[phases == p], n)
+                np.count_nonzero(phases == p) * mean_slowest(times[phases == p], n)
                 for p in range(lengths[0])
             )
             slowest = sum(weighted) / times.size
         else:
-            slowest = _mean_slowest(times, n)
+            slowest = mean_slowest(times, n)
         ceilings[str(n)] = n * float(times.mean()) / slowest
     return ceilings
 
@@ -151,7 +152,7 @@ def vector_throughput(config: Config, kind: str, workers: int, steps: int, repea
             "ceilings": lockstep_ceilings(config, CEILING_STEPS_PER_RATE_STEP * steps * repeats),
             "vector_cost_ms": vector_cost_ms(config, steps * repeats),
         }
-    rates = _vector_rates(_vector_env(config, kind, workers), kind, workers, steps, repeats)
+    rates = _vector_rates(vector_env(config, kind, workers), kind, workers, steps, repeats)
     return spread(rates)
 
 

@@ -106,7 +106,7 @@ def test_gymnasium_async_scaling_counts_only_calls_that_step_every_env():
     # Each call of step() is counted as one env step per worker, so a call must not be a
     # reset alone (Gymnasium's default NEXT_STEP autoreset): with 4-view episodes every env
     # ends an episode on calls 4 and 8 of 8.
-    env = scaling._vector_env(VIEW_DEFAULT, "gymnasium-async", 2)
+    env = scaling.vector_env(VIEW_DEFAULT, "gymnasium-async", 2)
     try:
         env.reset(seed=0)
         env.action_space.seed(0)
@@ -217,7 +217,7 @@ def test_mean_slowest_of_n_is_the_mean_maximum_over_every_draw():
     for n in (1, 2, 3):
         draws = list(itertools.product(times, repeat=n))  # with replacement: independent draws
         expected = np.mean([max(draw) for draw in draws])
-        assert scaling._mean_slowest(times, n) == pytest.approx(expected, rel=1e-12)
+        assert scaling.mean_slowest(times, n) == pytest.approx(expected, rel=1e-12)
 
 
 def test_ceilings_group_steps_by_phase_only_when_enough_episodes_stay_in_phase():

@@ -959,7 +959,7 @@ def test_a_report_stopped_after_its_numbers_leaves_no_earlier_report_md(tmp_path
     def stopped(*args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(report, "_figures", stopped)
+    monkeypatch.setattr(report, "write_figures", stopped)
     assert evaluate.main([*argv, "--seed", "7"]) == 130
     assert read_report(out)["seeds"] == [7, 7]
     assert "seeds 7-7 " in (out / "report.md").read_text()
