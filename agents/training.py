@@ -69,10 +69,10 @@ from agents.evaluation import (
     task_for,
 )
 from agents.plotting import plot_learning_curve
-from agents.policies import ACTIVATIONS, FEATURES_EXTRACTORS, OPTIMIZERS
 from agents.spaces import describe_space, mismatched_spaces
 from agents.workers import WORKER_GONE, WorkerDied
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
+from liuxing_envs.policy_parts import ACTIVATIONS, FEATURES_EXTRACTORS, OPTIMIZERS
 from liuxing_envs.validation import is_number
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}

@@ -1556,7 +1556,7 @@ def test_perception_extractor_encodes_every_observation_key():
     import torch
 
     import liuxing_envs  # noqa: F401
-    from agents.policies import ImageEncoder, OccupancyEncoder, PerceptionExtractor
+    from liuxing_envs.policy_parts import ImageEncoder, OccupancyEncoder, PerceptionExtractor
 
     env = gym.make("ViewPlanning-v1")
     extractor = PerceptionExtractor(env.observation_space, image_features=32, map_features=16)
@@ -1577,7 +1577,7 @@ def test_perception_extractor_encodes_every_observation_key():
 def test_perception_extractor_names_the_smallest_image_it_takes():
     import gymnasium as gym
 
-    from agents.policies import MIN_IMAGE_SIDE, ImageEncoder
+    from liuxing_envs.policy_parts import MIN_IMAGE_SIDE, ImageEncoder
 
     ImageEncoder((1, MIN_IMAGE_SIDE, MIN_IMAGE_SIDE), 8)  # leaves one pixel
     small = gym.spaces.Box(0, 255, (1, MIN_IMAGE_SIDE - 1, 64), dtype=np.uint8)
@@ -1590,7 +1590,7 @@ def test_perception_extractor_stacks_free_space_onto_the_map():
     import torch
 
     import liuxing_envs  # noqa: F401
-    from agents.policies import PerceptionExtractor
+    from liuxing_envs.policy_parts import PerceptionExtractor
 
     env = gym.make("ViewPlanning-v1", observe_free_space=True)
     extractor = PerceptionExtractor(env.observation_space, image_features=32, map_features=16)
