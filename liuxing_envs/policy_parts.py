@@ -145,6 +145,90 @@ class PerceptionExtractor(BaseFeaturesExtractor):
         return torch.cat(features, 1)
 
 
+class NormalizedObservations(BaseFeaturesExtractor):
+    """Another features extractor behind fixed observation statistics: what SB3's
+    ``VecNormalize`` does outside the policy, done inside it, so that ``predict`` takes the
+    env's raw observations and a saved model needs no second file.
+
+    ``statistics`` maps each normalised observation key (None for a Box space) to its
+    ``(mean, var)``; a key is scaled to ``clip((x - mean) / sqrt(var + epsilon), -clip, clip)``
+    in float64 and then rounded to float32, as ``VecNormalize.normalize_obs`` does, so the
+    extractor sees the same numbers bit for bit.
+    """
+
+    def __init__(
+        self,
+        observation_space: gym.Space,
+        statistics: dict,
+        clip: float,
+        epsilon: float,
+        extractor_class: type[BaseFeaturesExtractor] = CombinedExtractor,
+        extractor_kwargs: dict | None = None,
+    ) -> None:
+        extractor = extractor_class(observation_space, **(extractor_kwargs or {}))
+        super().__init__(observation_space, features_dim=extractor.features_dim)
+        self.extractor = extractor
+        self.clip = float(clip)
+        self.keys = list(statistics)
+        for index, key in enumerate(self.keys):
+            mean, var = (np.asarray(value, dtype=np.float64) for value in statistics[key])
+            self.register_buffer(f"mean_{index}", torch.from_numpy(mean.copy()))
+            self.register_buffer(f"scale_{index}", torch.from_numpy(np.sqrt(var + epsilon)))
+
+    def _normalized(self, value: torch.Tensor, index: int) -> torch.Tensor:
+        mean, scale = getattr(self, f"mean_{index}"), getattr(self, f"scale_{index}")
+        scaled = (value.double() - mean) / scale
+        return torch.clamp(scaled, -self.clip, self.clip).float()
+
+    def forward(self, observations):
+        if self.keys == [None]:
+            return self.extractor(self._normalized(observations, 0))
+        observations = dict(observations)
+        for index, key in enumerate(self.keys):
+            observations[key] = self._normalized(observations[key], index)
+        return self.extractor(observations)
+
+
+def with_embedded_normalizer(model, normalizer):
+    """``model`` (PPO or SAC) with ``normalizer``'s statistics (a ``VecNormalize``) moved into
+    its policy as :class:`NormalizedObservations` in front of each features extractor; the
+    weights are kept, the optimisers start afresh. Its ``predict`` on raw observations acts as
+    ``model.predict`` did on normalised ones. Rewards are not touched (a policy never sees
+    them)."""
+    if not normalizer.norm_obs:
+        return model
+    if isinstance(normalizer.obs_rms, dict):
+        statistics = {
+            key: (normalizer.obs_rms[key].mean, normalizer.obs_rms[key].var)
+            for key in normalizer.norm_obs_keys
+        }
+    else:
+        statistics = {None: (normalizer.obs_rms.mean, normalizer.obs_rms.var)}
+    policy = model.policy
+    kwargs = dict(model.policy_kwargs)
+    kwargs["features_extractor_class"] = NormalizedObservations
+    kwargs["features_extractor_kwargs"] = {
+        "statistics": statistics,
+        "clip": float(normalizer.clip_obs),
+        "epsilon": float(normalizer.epsilon),
+        "extractor_class": policy.features_extractor_class,
+        "extractor_kwargs": dict(policy.features_extractor_kwargs),
+    }
+    embedded = type(policy)(
+        model.observation_space, model.action_space, model.lr_schedule, **kwargs
+    ).to(model.device)
+    weights = embedded.state_dict()
+    for name, value in policy.state_dict().items():
+        weights[name.replace("features_extractor.", "features_extractor.extractor.")] = value
+    embedded.load_state_dict(weights)
+    embedded.set_training_mode(False)
+    model.policy = embedded
+    model.policy_kwargs = kwargs
+    if hasattr(model, "_create_aliases"):  # SAC's actor / critic / critic_target
+        model._create_aliases()
+    return model
+
+
 #: Names a hyper-parameter file may give as ``policy_kwargs.features_extractor``.
 FEATURES_EXTRACTORS = {"perception": PerceptionExtractor, "combined": CombinedExtractor}
 #: Names a hyper-parameter file may give as ``policy_kwargs.activation_fn``.
