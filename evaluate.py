@@ -156,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     # Heavy imports (torch, SB3, MuJoCo) after parsing, so --help and flag errors are instant.
     from agents import contestants as contest
     from agents import report
-    from liuxing_envs.registration import family
+    from agents.evaluation import TASKS
+    from agents.task_reports import REPORTS, report_for
 
     try:
         if args.env is not None:
@@ -176,21 +177,20 @@ def main(argv: list[str] | None = None) -> int:
             algo=args.algo,
             baselines=baselines,
             env_kwargs=parse_assignments(args.env_kwargs, "--env-kwargs"),
+            # Each task's split flag (Task.split_flag) stores its split under split_kwarg.
             splits={
-                env: split
-                for env, split in (
-                    ("ViewPlanning", args.object_set),
-                    ("InstrumentGrasp", args.instrument_set),
-                )
-                if split is not None
+                name: getattr(args, task.split_kwarg)
+                for name, task in TASKS.items()
+                if getattr(args, task.split_kwarg) is not None
             },
             best=not args.final_model,
             raw_observations=args.raw_observations,
         )
-        if reconstruction_flags and all(family(c.env_id) != "ViewPlanning" for c in contestants):
+        if reconstruction_flags and not any(report_for(c.env_id).reconstructs for c in contestants):
+            reconstructing = " or ".join(name for name, r in REPORTS.items() if r.reconstructs)
             parser.error(
-                f"{' and '.join(reconstruction_flags)} score ViewPlanning episodes by "
-                "reconstruction; no contestant here runs a ViewPlanning task"
+                f"{' and '.join(reconstruction_flags)} score {reconstructing} episodes by "
+                f"reconstruction; no contestant here runs a {reconstructing} task"
             )
         settings = report.Settings(
             episodes=args.episodes,

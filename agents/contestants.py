@@ -15,20 +15,17 @@ from pathlib import Path
 from agents import run_folder
 from agents.config import check_env_kwargs, closest, require_known
 from agents.evaluation import HELD_OUT_SPLIT, TASKS, SB3Policy, make_env, task_for
-from agents.grasp_baselines import GRASP_BASELINES
 from agents.spaces import describe_space, same_space
 from agents.training import ALGO_CLASSES
-from agents.view_baselines import BASELINES as VIEW_BASELINES
 from liuxing_envs.registration import family
 
-#: Baselines by task family (every version and variant of a task runs them).
-#: ``greedy-oracle`` reads the ground truth: reported as a privileged reference, never as a
-#: competitor.
+#: Baselines by task family (every version and variant of a task runs them), as each
+#: :class:`agents.evaluation.Task` declares them. A task's privileged reference (the greedy
+#: oracle reads the ground truth) is reported as such, never as a competitor.
 BASELINES: dict[str, Mapping[str, Callable]] = {
-    "ViewPlanning": VIEW_BASELINES,
-    "InstrumentGrasp": GRASP_BASELINES,
+    name: task.baselines for name, task in TASKS.items()
 }
-PRIVILEGED_BASELINES = frozenset({"greedy-oracle"})
+PRIVILEGED_BASELINES = frozenset(task.reference for task in TASKS.values() if task.reference)
 
 
 class ContestantError(ValueError):
@@ -63,7 +60,7 @@ def check_algo(algo: str) -> str:
 
 # ---------------------------------------------------------------------- baselines
 def baseline_names(env_id: str) -> list[str]:
-    return list(BASELINES[family(env_id)])
+    return list(task_for(env_id).baselines)
 
 
 def reference_baselines(env_id: str) -> list[str]:
@@ -82,7 +79,7 @@ def baseline_contestant(name: str, env_id: str, env_kwargs: Mapping) -> Contesta
             f"unknown baseline {name!r} for {env_id}{closest(name, allowed)}; "
             f"allowed: {', '.join(allowed)}"
         )
-    make_policy = BASELINES[family(env_id)][name]
+    make_policy = task_for(env_id).baselines[name]
     return Contestant(
         label=name,
         group=name,

@@ -2,8 +2,9 @@
 
 Every policy exposes SB3's ``predict(observation, state=None, episode_start=None,
 deterministic=True)`` for one unbatched observation; scripted ones may also have ``reset()``,
-called at each episode start. :data:`TASKS` says, per environment id, which figure is the
-headline, which split is held out and which scripted baseline a learner must beat.
+called at each episode start. :data:`TASKS` says, per task family, which figure is the
+headline, which split is held out, which scripted baselines it has and which one a learner must
+beat; how a report presents a task is declared in :mod:`agents.task_reports`.
 """
 
 from __future__ import annotations
@@ -17,10 +18,10 @@ import numpy as np
 
 from agents import run_folder
 from agents.config import ConfigError, check_env_kwargs
-from agents.grasp_baselines import ScriptedGrasp
+from agents.grasp_baselines import GRASP_BASELINES, ScriptedGrasp
 from agents.spaces import describe_space, same_space
 from agents.statistics import bootstrap_ci, interval_text, wilson_interval
-from agents.view_baselines import FourViewpointBaseline, GreedyOracle
+from agents.view_baselines import BASELINES as VIEW_BASELINES
 from liuxing_envs.registration import BY_ID, family
 
 #: Evaluation seeds start here, away from the training (``seed``) and periodic-evaluation
@@ -39,8 +40,9 @@ class Task:
     split_kwarg: str  #: the env kwarg naming a split of the scene library
     #: the env kwarg listing a scene's items explicitly, which overrides any split
     explicit_scene_kwarg: str
-    baseline: str
-    make_baseline: Callable
+    #: every scripted baseline, by the name evaluate.py takes: ``env -> policy``
+    baselines: Mapping[str, Callable]
+    baseline: str  #: the baseline a learner must beat
     #: whether the metric is a yes/no outcome (0 or 1 per episode), which has no IQM: the
     #: trimmed mean of 0/1 values is a distorted rate (80% success reads as 1.0)
     metric_is_binary: bool = False
@@ -50,7 +52,14 @@ class Task:
     extra_metrics: tuple[str, ...] = ()
     #: a privileged reference (ground truth), reported for scale, never a competitor
     reference: str | None = None
-    make_reference: Callable | None = None
+
+    @property
+    def make_baseline(self) -> Callable:
+        return self.baselines[self.baseline]
+
+    @property
+    def make_reference(self) -> Callable | None:
+        return None if self.reference is None else self.baselines[self.reference]
 
     @property
     def split_flag(self) -> str:
@@ -70,11 +79,10 @@ TASKS = {
         metric_label="final coverage",
         split_kwarg="object_set",
         explicit_scene_kwarg="objects",
+        baselines=VIEW_BASELINES,
         baseline="four-view",
-        make_baseline=FourViewpointBaseline,
         extra_metrics=("is_success",),
         reference="greedy-oracle",
-        make_reference=GreedyOracle,
     ),
     "InstrumentGrasp": Task(
         metric="is_success",
@@ -82,8 +90,8 @@ TASKS = {
         metric_is_binary=True,
         split_kwarg="instrument_set",
         explicit_scene_kwarg="instruments",
+        baselines=GRASP_BASELINES,
         baseline="scripted-grasp",
-        make_baseline=ScriptedGrasp,
         baseline_env_kwargs=ScriptedGrasp.ENV_KWARGS,
         extra_metrics=(
             "peak_force",

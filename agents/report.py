@@ -19,17 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from agents import plotting, run_folder
+from agents import run_folder
 from agents.contestants import Contestant, ContestantError, check_fits, make_checked_env, slug
 from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
-from agents.recorders import COVERAGE_LEVELS, GraspRecorder, ViewPlanningRecorder
 from agents.report_folder import (
-    COVERAGE_FIGURE,
     FIGURES,
-    FORCE_TRACES_FIGURE,
-    GRASP_OUTCOMES_FIGURE,
-    PEAK_FORCES_FIGURE,
-    RECONSTRUCTIONS_FOLDER,
     REPORT_JSON,
     ReportFolderError,
     check_reconstruction_folders,
@@ -39,25 +33,22 @@ from agents.report_folder import (
     replace_earlier_files,
 )
 from agents.statistics import (
-    bootstrap_ci,
     interval_text,
     iqm,
     probability_of_improvement,
     probability_of_improvement_ci,
     run_bootstrap_ci,
     stratified_bootstrap_ci,
-    wilson_interval,
 )
+from agents.task_reports import ci_text, kind_text, report_for
 from agents.training import SAVED_CONFIG_DEFAULTS
 from agents.video import record_videos
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
-from liuxing_envs.registration import family
 
 DEFAULT_EPISODES = 100
 DEFAULT_RECONSTRUCT_EPISODES = 20
 DEFAULT_SAVE_EPISODES = 3
 DEFAULT_VIDEO_EPISODES = 2
-DEFAULT_TRACE_EPISODES = 5
 REPORT_MD = "report.md"
 
 
@@ -85,7 +76,7 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
         check_subfolders(out)
         earlier_files = earlier_report_files(out)  # read now: a stop leaves them all in place
         if settings.reconstruct_episodes and settings.save_episodes:
-            labels = [c.label for c in contestants if family(c.env_id) == "ViewPlanning"]
+            labels = [c.label for c in contestants if report_for(c.env_id).reconstructs]
             check_reconstruction_folders(out, labels, earlier_files)
     except (OutputFolderError, ReportFolderError) as error:
         for env in envs.values():
@@ -191,13 +182,9 @@ def _open_envs(contestants: Sequence[Contestant]) -> dict:
 
 
 def _recorder(contestant: Contestant, settings: Settings, reconstructions: Path):
-    if family(contestant.env_id) == "ViewPlanning":
-        return ViewPlanningRecorder(
-            reconstruct_episodes=settings.reconstruct_episodes,
-            save_dir=reconstructions / slug(contestant.label),
-            save_episodes=min(settings.save_episodes, settings.reconstruct_episodes),
-        )
-    return GraspRecorder()
+    return report_for(contestant.env_id).make_recorder(
+        settings, reconstructions / slug(contestant.label)
+    )
 
 
 def _progress_bar(total: int, enabled: bool):
@@ -253,73 +240,11 @@ def _describe(contestant: Contestant) -> dict:
 
 
 # ---------------------------------------------------------------------- statistics
-def _mean_ci(values) -> dict | None:
-    values = [v for v in values if v is not None]
-    if not values:
-        return None
-    ci = bootstrap_ci(values)
-    return {
-        "mean": float(np.mean(values)),
-        "ci95": None if ci is None else list(ci),
-        "n": len(values),
-    }
-
-
-def _rate(flags) -> dict:
-    flags = [bool(flag) for flag in flags]
-    low, high = wilson_interval(sum(flags), len(flags))
-    return {"rate": sum(flags) / len(flags), "ci95": [low, high], "count": sum(flags)}
-
-
 def _summary(env_id: str, episodes: list[dict]) -> dict:
     task = task_for(env_id)
     summary = summarize(episodes, task.metric)
-    if family(env_id) == "ViewPlanning":
-        summary.update(_view_planning_summary(episodes))
-    else:
-        summary.update(_grasp_summary(episodes))
+    summary.update(report_for(env_id).summary(episodes))
     return summary
-
-
-def _view_planning_summary(episodes: list[dict]) -> dict:
-    longest = max(len(e["coverage_after_view"]) for e in episodes)
-    # An episode that ended early (terminate_on_success) keeps its last coverage.
-    curves = np.array(
-        [
-            np.pad(c, (0, longest - len(c)), mode="edge")
-            for c in (e["coverage_after_view"] for e in episodes)
-        ]
-    )
-    summary = {
-        "coverage_after_view": [_mean_ci(curves[:, k]) for k in range(longest)],
-        "refused_views": _mean_ci([e["refused_views"] for e in episodes]),
-        "joint_path_length": _mean_ci([e["joint_path_length"] for e in episodes]),
-        "motion_cost": _mean_ci([e["motion_cost"] for e in episodes]),
-    }
-    for level in COVERAGE_LEVELS:
-        key = f"views_to_{round(100 * level)}"
-        views = [e[key] for e in episodes]
-        summary[key] = {
-            "reached": _rate([v is not None for v in views]),
-            "views_if_reached": _mean_ci(views),
-        }
-    for key in ("chamfer", "fscore", "precision", "completeness"):
-        summary[key] = _mean_ci([e[key] for e in episodes if key in e])
-    return summary
-
-
-def _grasp_summary(episodes: list[dict]) -> dict:
-    peaks = np.array([e["peak_force"] for e in episodes])
-    return {
-        "success": _rate([e["is_success"] for e in episodes]),
-        "hard_limit_exceeded": _rate([e["hard_limit_exceeded"] for e in episodes]),
-        "over_force_limit": _rate([e["force_violations"] > 0 for e in episodes]),
-        "peak_force_quantiles": {
-            q: float(np.quantile(peaks, float(q))) for q in ("0.5", "0.9", "1.0")
-        },
-        "max_lift": _mean_ci([e["max_lift"] for e in episodes]),
-        "time_to_lift": _mean_ci([e["time_to_lift"] for e in episodes]),
-    }
 
 
 def _scores(result: dict, metric: str) -> np.ndarray:
@@ -332,11 +257,7 @@ def _without(kwargs: dict, keys) -> dict:
 
 def _environment_section(env_id: str, results: list[dict]) -> dict:
     task = task_for(env_id)
-    scene_keys = (
-        ("object", "scale", "position", "yaw")
-        if family(env_id) == "ViewPlanning"
-        else ("instrument", "start_position", "start_yaw")
-    )
+    scene_keys = report_for(env_id).scene_keys
     scenes = [
         [tuple(map(str, (e.get(k) for k in scene_keys))) for e in r["episodes"]] for r in results
     ]
@@ -427,61 +348,8 @@ def write_figures(report: dict, out: Path, settings: Settings) -> dict:
     """The report's figures under ``out``, by name (the report links them)."""
     figures: dict = {}
     for env_id, section in report["environments"].items():
-        results = section["contestants"]
-        if family(env_id) == "ViewPlanning":
-            figures["coverage_vs_views"] = _rel(
-                plotting.plot_coverage_curves(
-                    out / COVERAGE_FIGURE,
-                    {r["label"]: r["summary"]["coverage_after_view"] for r in results},
-                ),
-                out,
-            )
-            pictures = []
-            saved = min(settings.save_episodes, settings.reconstruct_episodes)
-            saved_seeds = range(settings.seed, settings.seed + saved)
-            for result in results:
-                folder = out / RECONSTRUCTIONS_FOLDER / slug(result["label"])
-                picture = plotting.plot_reconstructions(
-                    folder / "reconstructions.png", folder, result["label"], saved_seeds
-                )
-                if picture is not None:
-                    pictures.append(_rel(picture, out))
-            figures["reconstructions"] = pictures
-        else:
-            limits = results[0]["limits"]
-            figures["force_traces"] = _rel(
-                plotting.plot_force_traces(
-                    out / FORCE_TRACES_FIGURE,
-                    {
-                        r["label"]: [
-                            e["force_trace"] for e in r["episodes"][:DEFAULT_TRACE_EPISODES]
-                        ]
-                        for r in results
-                    },
-                    **limits,
-                ),
-                out,
-            )
-            figures["grasp_outcomes"] = _rel(
-                plotting.plot_grasp_outcomes(
-                    out / GRASP_OUTCOMES_FIGURE, {r["label"]: r["summary"] for r in results}
-                ),
-                out,
-            )
-            figures["peak_forces"] = _rel(
-                plotting.plot_peak_forces(
-                    out / PEAK_FORCES_FIGURE,
-                    {r["label"]: [e["peak_force"] for e in r["episodes"]] for r in results},
-                    limits["force_limit"],
-                    limits["hard_limit"],
-                ),
-                out,
-            )
+        figures.update(report_for(env_id).figures(out, section["contestants"], settings))
     return figures
-
-
-def _rel(path: Path | None, out: Path) -> str | None:
-    return None if path is None else str(Path(path).relative_to(out))
 
 
 def _json_default(value):
@@ -493,105 +361,6 @@ def _json_default(value):
 
 
 # ---------------------------------------------------------------------- markdown
-def _ci(entry: dict | None, scale: float = 1.0, digits: int = 3) -> str:
-    if entry is None:
-        return "-"
-    return f"{entry['mean'] * scale:.{digits}f} {interval_text(entry['ci95'], scale, digits)}"
-
-
-def _pct(entry: dict) -> str:
-    low, high = entry["ci95"]
-    return f"{100 * entry['rate']:.0f}% [{100 * low:.0f}, {100 * high:.0f}]"
-
-
-def _kind(result: dict) -> str:
-    return {"policy": "trained", "baseline": "baseline", "privileged": "privileged"}[result["kind"]]
-
-
-def _view_planning_tables(section: dict) -> list[str]:
-    results = section["contestants"]
-    levels = [f"views_to_{round(100 * level)}" for level in COVERAGE_LEVELS]
-    lines = [
-        "| contestant | kind | final coverage [95% CI] | "
-        + " | ".join(f"reached {k[-2:]}% (views if reached)" for k in levels)
-        + " | Chamfer mm [95% CI] | F-score [95% CI] | joint path rad | refused views |",
-        "|---|---|---|" + "---|" * len(levels) + "---|---|---|---|",
-    ]
-    for r in results:
-        s = r["summary"]
-        reached = []
-        for key in levels:
-            entry = s[key]
-            views = entry["views_if_reached"]
-            reached.append(
-                f"{100 * entry['reached']['rate']:.0f}%"
-                + (f" ({views['mean']:.2f})" if views else "")
-            )
-        lines.append(
-            f"| {r['label']} | {_kind(r)} | {_ci({'mean': s['mean'], 'ci95': s['ci95']})} | "
-            + " | ".join(reached)
-            + f" | {_ci(s['chamfer'], 1000, 2)} | {_ci(s['fscore'])}"
-            + f" | {s['joint_path_length']['mean']:.2f} | {s['refused_views']['mean']:.2f} |"
-        )
-    budget = max(len(r["summary"]["coverage_after_view"]) for r in results)
-    lines += [
-        "",
-        "Coverage after each view (mean; view 0 is the start view taken at reset):",
-        "",
-        "| contestant | " + " | ".join(f"view {k}" for k in range(budget)) + " |",
-        "|---|" + "---|" * budget,
-    ]
-    for r in results:
-        curve = r["summary"]["coverage_after_view"]
-        lines.append(
-            f"| {r['label']} | " + " | ".join(f"{entry['mean']:.3f}" for entry in curve) + " |"
-        )
-    lines += _reconstruction_note(results)
-    return lines
-
-
-def _reconstruction_note(results: list[dict]) -> list[str]:
-    """What the Chamfer and F-score columns average: the episodes reconstructed, less, for
-    Chamfer, those whose scan fused nothing (no finite distance), named per contestant."""
-    reconstructed = max(sum("chamfer" in e for e in r["episodes"]) for r in results)
-    if not reconstructed:
-        return []
-    note = (
-        f"Chamfer distance and F-score: open3d Poisson reconstructions of the first "
-        f"{reconstructed} episodes of each contestant, against dense ground-truth surface "
-        "samples (τ = 1% of the object's bounding-box diagonal)."
-    )
-    with_distance = {r["label"]: (r["summary"]["chamfer"] or {"n": 0})["n"] for r in results}
-    fewer = [f"{label} {n}" for label, n in with_distance.items() if n < reconstructed]
-    if fewer:
-        note += (
-            " A scan that fused nothing has no Chamfer distance (its F-score is 0), so the "
-            f"Chamfer column averages fewer: {', '.join(fewer)} of {reconstructed}."
-        )
-    return ["", note]
-
-
-def _grasp_tables(section: dict) -> list[str]:
-    lines = [
-        "| contestant | kind | success [95% CI] | hard-limit stops | episodes over the force "
-        "limit | peak force N (median / p90 / max) | max lift cm | time to lift s |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for r in section["contestants"]:
-        s = r["summary"]
-        q = s["peak_force_quantiles"]
-        lift = s["time_to_lift"]
-        lines.append(
-            f"| {r['label']} | {_kind(r)} | {_pct(s['success'])} | "
-            f"{s['hard_limit_exceeded']['count']} | {s['over_force_limit']['count']} | "
-            f"{q['0.5']:.1f} / {q['0.9']:.1f} / {q['1.0']:.1f} | "
-            f"{100 * s['max_lift']['mean']:.1f} | "
-            + (f"{lift['mean']:.2f} (n={lift['n']})" if lift else "-")
-            + " |"
-        )
-    return lines
-
-
 def markdown(report: dict) -> str:
     settings = report["settings"]
     first, last = report["seeds"]
@@ -635,14 +404,11 @@ def markdown(report: dict) -> str:
             named = model and Path(model).name != Path(r["source"]).name  # a run folder's
             scored = f" (scored: `{Path(model).name}`)" if named else ""
             lines.append(
-                f"- **{r['label']}** ({_kind(r)}{extra}): `{r['source']}`{scored}, env kwargs "
+                f"- **{r['label']}** ({kind_text(r)}{extra}): `{r['source']}`{scored}, env kwargs "
                 f"`{json.dumps(r['env_kwargs'])}`"
             )
         lines.append("")
-        if family(env_id) == "ViewPlanning":
-            lines += _view_planning_tables(section)
-        else:
-            lines += _grasp_tables(section)
+        lines += report_for(env_id).tables(section)
         for note in section.get("aggregate_notes", []):
             lines += ["", f"Not aggregated: {note}."]
         if section["aggregates"]:
@@ -667,17 +433,17 @@ def markdown(report: dict) -> str:
                 iqm_text = "- (yes/no outcomes)"
                 if a["iqm"] is not None:
                     iqm_text = (
-                        f"{_ci({'mean': a['iqm'], 'ci95': a['iqm_seed_ci95']})} "
+                        f"{ci_text({'mean': a['iqm'], 'ci95': a['iqm_seed_ci95']})} "
                         f"{interval_text(a['iqm_ci95'])}"
                     )
                 poi_text = "-"
                 if poi:
-                    poi_text = _ci({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2)
+                    poi_text = ci_text({"mean": poi["value"], "ci95": poi["ci95"]}, digits=2)
                 elif "no_improvement_because" in a:
                     poi_text = f"- ({a['no_improvement_because']})"
                 lines.append(
                     f"| {a['group']} | {len(a['runs'])} | {iqm_text} | "
-                    f"{_ci({'mean': a['mean'], 'ci95': a['mean_seed_ci95']})} "
+                    f"{ci_text({'mean': a['mean'], 'ci95': a['mean_seed_ci95']})} "
                     f"{interval_text(a['mean_ci95'])} | {poi_text} |"
                 )
     figures = report.get("figures", {})
@@ -705,7 +471,7 @@ def summary_lines(report: dict) -> str:
             summary = result["summary"]
             lines.append(
                 f"  {result['label']:<32} {summary['mean']:.3f}  95% CI "
-                f"{interval_text(summary['ci95'])}  ({_kind(result)})"
+                f"{interval_text(summary['ci95'])}  ({kind_text(result)})"
             )
     return "\n".join(lines)
 

@@ -1,6 +1,7 @@
 """mp4 videos of evaluation episodes: the environment's ``rgb_array`` render (ViewPlanning:
 the scene with the camera frustum and the fused points; InstrumentGrasp: pads shaded by
-force) with a text read-out of the figures that matter, written with OpenCV."""
+force) with the task's text read-out of the figures that matter (its
+:class:`agents.task_reports.TaskReport`), written with OpenCV."""
 
 from __future__ import annotations
 
@@ -12,27 +13,10 @@ import numpy as np
 
 from agents.contestants import slug
 from agents.evaluation import make_env, seed_sampling
-from liuxing_envs.registration import family
 
-#: ViewPlanning episodes are a handful of views: each is held on screen this long.
-VIEW_SECONDS = 1.0
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 VIDEOS_FOLDER = "videos"
-
-
-def _readout(env_id: str, info: dict, seconds: float) -> list[str]:
-    if family(env_id) == "ViewPlanning":
-        lines = [f"view {info['views_used']}  coverage {info['coverage']:.3f}"]
-        if info.get("refused"):
-            lines.append("view refused")
-        return lines
-    return [
-        f"t {seconds:.2f} s  grip {info.get('grip_force', 0.0):.1f} N  "
-        f"peak {info.get('peak_force', 0.0):.1f} N",
-        f"lift {100 * info.get('lift_height', 0.0):.1f} cm"
-        + ("  grasped" if info.get("grasped") else ""),
-    ]
 
 
 def _annotate(frame: np.ndarray, title: str, lines: Sequence[str]) -> np.ndarray:
@@ -52,15 +36,17 @@ def record_videos(
     generator seeded with each episode's seed); returns the written paths."""
     folder = Path(out) / VIDEOS_FOLDER
     folder.mkdir(parents=True, exist_ok=True)
+    # Not at the top: agents.task_reports imports agents.report_folder, which imports this
+    # module's VIDEOS_FOLDER.
+    from agents.task_reports import report_for
+
     seeds = list(seeds)
     written = []
     for contestant in contestants:
         env = make_env(contestant.env_id, contestant.env_kwargs, render_mode="rgb_array")
         fps = env.metadata.get("render_fps", 20)
-        if family(contestant.env_id) == "ViewPlanning":
-            repeat, dt = max(1, round(VIEW_SECONDS * fps)), 0.0
-        else:
-            repeat, dt = 1, env.unwrapped.dt
+        presentation = report_for(contestant.env_id)
+        repeat, dt = presentation.frame_timing(env, fps)
         path = folder / f"{slug(contestant.label)}.mp4"
         writer = None
         try:
@@ -75,7 +61,7 @@ def record_videos(
                     frame = _annotate(
                         env.render(),
                         f"{contestant.label}  seed {seed}",
-                        _readout(contestant.env_id, info, step * dt),
+                        presentation.readout(info, step * dt),
                     )
                     if writer is None:
                         height, width = frame.shape[:2]

@@ -829,7 +829,7 @@ def test_a_scan_with_nothing_fused_is_recorded_without_a_chamfer_distance():
     # Its Chamfer distance is infinite, which report.json (strict JSON) cannot hold: the
     # episode records None, and the summary averages the episodes that have one.
     from agents.recorders import ViewPlanningRecorder
-    from agents.report import _reconstruction_note, _view_planning_summary
+    from agents.task_reports import reconstruction_note, view_planning_summary
     from liuxing_envs.envs.view_planning import ViewPlanningEnv
 
     env = ViewPlanningEnv(objects=["box"], scales=(1.0,), coverage_samples=1024)
@@ -844,12 +844,12 @@ def test_a_scan_with_nothing_fused_is_recorded_without_a_chamfer_distance():
     env.close()
     assert records[0]["chamfer"] > 0 and records[1]["chamfer"] is None
     assert records[1]["fscore"] == 0.0
-    summary = _view_planning_summary(records)
+    summary = view_planning_summary(records)
     assert summary["chamfer"]["n"] == 1 and summary["chamfer"]["mean"] == records[0]["chamfer"]
     json.dumps(records, allow_nan=False)
     # The report's note counts both episodes as reconstructed and says Chamfer averages one.
     note = " ".join(
-        _reconstruction_note([{"label": "ppo", "summary": summary, "episodes": records}])
+        reconstruction_note([{"label": "ppo", "summary": summary, "episodes": records}])
     )
     assert "of the first 2 episodes" in note and "averages fewer: ppo 1 of 2" in note
 
