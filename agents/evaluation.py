@@ -292,10 +292,21 @@ class SB3Policy:
     @classmethod
     def load(cls, algo_class, model_path: Path, normalizer_path: Path | None, device="cpu"):
         """Raises :class:`agents.run_folder.RunFolderError` naming a file that is missing,
-        truncated, corrupt or foreign."""
+        truncated, corrupt or foreign. A model that carries its observation statistics
+        (:class:`~liuxing_envs.policy_parts.NormalizedObservations`) takes raw observations:
+        a normaliser file beside it is not applied a second time."""
+        from liuxing_envs.policy_parts import NormalizedObservations
+
         model = run_folder.load_model(algo_class, model_path, device=device)
         normalizer = None
-        if normalizer_path is not None and Path(normalizer_path).is_file():
+        carries_statistics = any(
+            isinstance(part, NormalizedObservations) for part in model.policy.modules()
+        )
+        if (
+            not carries_statistics
+            and normalizer_path is not None
+            and Path(normalizer_path).is_file()
+        ):
             normalizer = run_folder.load_normalizer(normalizer_path)
             normalizer.training = False
             if not same_space(model.observation_space, normalizer.observation_space):

@@ -44,3 +44,23 @@ def test_a_policy_with_its_normalizer_inside_acts_on_raw_observations_as_before(
     unnormalized, _ = model.predict(observation, deterministic=True)
     normalized, _ = reloaded.predict(observation, deterministic=True)
     assert not np.array_equal(unnormalized, normalized)
+
+
+def test_the_evaluators_loader_applies_no_normalizer_file_to_a_policy_that_carries_one(
+    shipped_grasp, tmp_path
+):
+    from agents.evaluation import SB3Policy
+
+    model, normalizer = shipped_grasp
+    with_embedded_normalizer(
+        SAC.load(SHIPPED_GRASP / "best_model.zip", device="cpu"), normalizer
+    ).save(tmp_path / "best_model.zip")
+    (tmp_path / "best_vecnormalize.pkl").write_bytes(
+        (SHIPPED_GRASP / "best_vecnormalize.pkl").read_bytes()
+    )
+    loaded = SB3Policy.load(SAC, tmp_path / "best_model.zip", tmp_path / "best_vecnormalize.pkl")
+    env = gym.make("InstrumentGrasp-v1")
+    observation, _ = env.reset(seed=1_000_001)
+    expected, _ = model.predict(normalizer.normalize_obs(observation), deterministic=True)
+    acted, _ = loaded.predict(observation, deterministic=True)
+    np.testing.assert_array_equal(acted, expected)  # normalised once, not twice
