@@ -853,6 +853,12 @@ def _start(config: dict, run_dir: Path, trained: TrainedStart | None):
                 # Its rewards are the trained run's: a changed reward kwarg applies to new ones.
                 run_folder.use_replay_buffer(model, trained.replay_buffer)
         if config.get("demonstrations"):
+            spec = config["demonstrations"]
+            print(
+                f"seeding the replay buffer with {spec['episodes']} {spec['expert']} episodes "
+                "(hyper-parameter demonstrations; null skips them) ...",
+                flush=True,
+            )
             added = seed_replay_buffer(model, config)
             run_folder.write_text_atomically(
                 run_dir / run_folder.DEMONSTRATIONS, json.dumps(added, indent=2)
@@ -1340,6 +1346,13 @@ def _save_trained(model, config: dict, run_dir: Path, level, clock: TrainingCloc
 def _final_comparison(run_dir: Path, config: dict, result: dict) -> dict:
     """The best model against the scripted baseline, added to the run's result.json."""
     policy = load_policy(run_dir, config, best=True)
+    task = task_for(config["env_id"])
+    others = " and ".join(name for name in (task.baseline, task.reference) if name)
+    print(
+        f"final comparison: {config['final_episodes']} held-out episodes each for the trained "
+        f"policy and {others} (--final-episodes sets how many) ...",
+        flush=True,
+    )
     try:
         comparison = compare_with_baseline(
             config["env_id"], policy, config["env_kwargs"], config["final_episodes"]

@@ -542,6 +542,8 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
     temp_dir.mkdir()
     result = run_train(*quick_args(env_id, algo, run_dir, steps), env={"TMPDIR": str(temp_dir)})
     assert "trained policy" in result.stdout
+    # A phase that takes a while says so first, with what sets its size.
+    assert "final comparison: 2 held-out episodes each for the trained policy" in result.stdout
     assert sb3_temporary_folders(temp_dir) == []  # a run writes into its own folder only
 
     config = yaml.safe_load((run_dir / run_folder.CONFIG).read_text())
@@ -596,7 +598,8 @@ def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_pa
     temp_dir = tmp_path / "tmp"
     temp_dir.mkdir()
     extra = ("--env-kwargs", "max_translation=0.02", "max_yaw=0.2")
-    run_train(*args, *extra, env={"TMPDIR": str(temp_dir)})
+    result = run_train(*args, *extra, env={"TMPDIR": str(temp_dir)})
+    assert "seeding the replay buffer with 1 privileged-grasp episodes" in result.stdout
     assert sb3_temporary_folders(temp_dir) == []  # the cloning steps' logger included
     added = json.loads((run_dir / run_folder.DEMONSTRATIONS).read_text())
     assert added == {
