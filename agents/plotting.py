@@ -55,9 +55,17 @@ def _save(figure, path: Path) -> Path:
 
 
 def plot_learning_curve(run_dir: Path, metric_label: str, episodes: int) -> Path | None:
-    """``episodes``: how many episodes each evaluation averaged."""
+    """The run's learning curve as ``learning_curve.png`` in ``run_dir`` (None before its
+    first episode); ``episodes``: how many episodes each evaluation averaged."""
+    figure = learning_curve_figure(run_dir, metric_label, episodes)
+    return None if figure is None else _save(figure, Path(run_dir) / run_folder.LEARNING_CURVE)
+
+
+def learning_curve_figure(run_dir: Path, metric_label: str, episodes: int):
+    """The figure :func:`plot_learning_curve` saves: training returns and periodic
+    evaluations against environment steps."""
     plt = _pyplot()
-    from matplotlib.ticker import EngFormatter
+    from matplotlib.ticker import EngFormatter, MaxNLocator
 
     run_dir = Path(run_dir)
     evaluations = run_folder.read_evaluations(run_dir)
@@ -68,8 +76,13 @@ def plot_learning_curve(run_dir: Path, metric_label: str, episodes: int) -> Path
     if len(steps):
         window = min(SMOOTHING_EPISODES, len(returns))
         smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
+        # Markers, so that the one point of a short run shows.
         ax_return.plot(
-            steps[window - 1 :], smooth, color="0.6", label=f"training ({window}-episode mean)"
+            steps[window - 1 :],
+            smooth,
+            color="0.6",
+            marker=".",
+            label=f"training ({window}-episode mean)",
         )
     if evaluations:
         x = [row["timesteps"] for row in evaluations]
@@ -77,16 +90,21 @@ def plot_learning_curve(run_dir: Path, metric_label: str, episodes: int) -> Path
         # The spread across episodes mostly measures how objects differ; the band is the
         # mean's 95% interval, which is what says whether the policy changed.
         half = 1.96 * np.array([row["std_return"] for row in evaluations]) / np.sqrt(episodes)
-        ax_return.plot(x, mean, color="C0", label="evaluation (95% CI of the mean)")
+        ax_return.plot(x, mean, color="C0", marker=".", label="evaluation (95% CI of the mean)")
         ax_return.fill_between(x, mean - half, mean + half, color="C0", alpha=0.2)
         ax_metric.plot(x, [row["mean_metric"] for row in evaluations], color="C1", marker=".")
+    else:
+        ax_metric.text(
+            0.5, 0.5, "no periodic evaluation", ha="center", transform=ax_metric.transAxes
+        )
     ax_return.set(xlabel="environment steps", ylabel="episode return")
     ax_return.legend(loc="lower right")
     ax_metric.set(xlabel="environment steps", ylabel=f"evaluation {metric_label}")
     for axis in (ax_return, ax_metric):
         axis.grid(alpha=0.3)
         axis.xaxis.set_major_formatter(EngFormatter(sep=""))  # 200k, not 200000 (they overlap)
-    return _save(figure, run_dir / run_folder.LEARNING_CURVE)
+        axis.xaxis.set_major_locator(MaxNLocator(integer=True))  # steps: no "200m" ticks
+    return figure
 
 
 def plot_coverage_curves(path: Path, curves: dict) -> Path:

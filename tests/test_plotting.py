@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from agents import run_folder
-from agents.plotting import plot_learning_curve, training_returns
+from agents.plotting import learning_curve_figure, plot_learning_curve, training_returns
 
 
 def _write_monitor(path, t_start: float, episodes: list[tuple[float, int, float]]) -> None:
@@ -33,6 +33,23 @@ def test_a_resumed_runs_episodes_follow_the_first_segments(tmp_path):
     np.testing.assert_array_equal(steps, [4, 8, 10])
     np.testing.assert_array_equal(returns, [-1.5, 2.25, 7.0])
     assert plot_learning_curve(tmp_path, "success rate", 10).is_file()
+
+
+def test_a_short_runs_learning_curve_shows_its_point_on_whole_steps(tmp_path):
+    """A run of one episode and no evaluation drew an invisible line, and the empty
+    evaluation axis read "0, 200m, 400m, ...": steps in milli-steps."""
+    monitor = tmp_path / run_folder.MONITOR
+    monitor.mkdir()
+    _write_monitor(monitor / "a.monitor.csv", 1000.0, [(1.0, 200, 0.1)])
+    figure = learning_curve_figure(tmp_path, "success rate", 2)
+    figure.canvas.draw()
+    returns, metric = figure.axes
+    (training,) = returns.get_lines()
+    assert training.get_marker() not in (None, "None", "")  # one point, drawn
+    for axis in (returns, metric):
+        labels = [label.get_text() for label in axis.get_xticklabels()]
+        assert labels and all(text.lstrip("-").isdigit() for text in labels), labels
+    assert [text.get_text() for text in metric.texts] == ["no periodic evaluation"]
 
 
 def test_the_reconstruction_figure_shows_only_the_episodes_it_is_given(tmp_path):
