@@ -41,26 +41,19 @@ def wheel(tmp_path_factory) -> Path:
     return built
 
 
+def _install(wheel: Path, target) -> None:
+    """``wheel`` alone into the folder ``target`` (its dependencies are already installed)."""
+    pip = [sys.executable, "-m", "pip", "install", "--no-deps", "--quiet"]
+    subprocess.run([*pip, "--target", str(target), str(wheel)], check=True)
+
+
 @pytest.mark.slow
 def test_wheel_ships_assets_and_loads_the_scene_without_the_checkout(wheel, tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {"liuxing_envs/assets/tabletop.xml", "liuxing_envs/assets/ur5e.xml"} <= names
 
     target = tmp_path / "site"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "--no-deps",
-            "--quiet",
-            "--target",
-            str(target),
-            str(wheel),
-        ],
-        check=True,
-    )
+    _install(wheel, target)
     probe = (
         "import liuxing_envs.assets as a, liuxing_envs.sim.scene as s;"
         "print(a.assets_dir()); print(s.load_scene_model().nq)"
@@ -90,20 +83,7 @@ def _throwaway_venv(folder: Path, wheel: Path) -> Path:
         text=True,
         check=True,
     ).stdout.strip()
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "--no-deps",
-            "--quiet",
-            "--target",
-            purelib,
-            str(wheel),
-        ],
-        check=True,
-    )
+    _install(wheel, purelib)
     dependencies = [sysconfig.get_paths()["purelib"], *site.getsitepackages()]
     (Path(purelib) / "dependencies.pth").write_text("\n".join(dict.fromkeys(dependencies)) + "\n")
     return python

@@ -1105,16 +1105,7 @@ def _surface_samples(
     else:
         # Through the disk cache: a mesh of several parts needs open3d's inside/outside
         # queries, and importing open3d costs a process seconds that steps never need.
-        key = cache_key(
-            _SOURCE_DIGEST,
-            np.__version__,
-            open3d_version(),
-            mesh.vertices,
-            mesh.faces,
-            count,
-            seed,
-            interior_tolerance,
-        )
+        key = _mesh_cache_key(mesh, count, seed, interior_tolerance)
         stored = load_array("surface", key, (count, 6), np.float64)
         if stored is None:
             points, normals = _draw_surface_samples(mesh, count, seed, interior_tolerance)
@@ -1124,6 +1115,14 @@ def _surface_samples(
     points.setflags(write=False)
     normals.setflags(write=False)
     return points, normals
+
+
+def _mesh_cache_key(mesh: ObjectMesh, *inputs) -> str:
+    """The disk-cache key of a result computed from ``mesh`` and ``inputs`` by this module's
+    code with these numpy and open3d versions."""
+    return cache_key(
+        _SOURCE_DIGEST, np.__version__, open3d_version(), mesh.vertices, mesh.faces, *inputs
+    )
 
 
 def _draw_surface_samples(
@@ -1393,17 +1392,7 @@ def _stored_observable_mask(
     most of the time it takes to make a ViewPlanning-v0 env, and every process repeated it."""
     if _SOURCE_DIGEST is None:
         return observable_mask(mesh, points, normals, viewpoints, table=table)
-    key = cache_key(
-        _SOURCE_DIGEST,
-        np.__version__,
-        open3d_version(),
-        mesh.vertices,
-        mesh.faces,
-        points,
-        normals,
-        viewpoints,
-        table,
-    )
+    key = _mesh_cache_key(mesh, points, normals, viewpoints, table)
     mask = load_array("observable", key, (len(points),), bool)
     if mask is None:
         mask = observable_mask(mesh, points, normals, viewpoints, table=table)
