@@ -5,11 +5,12 @@ report (report.md, report.json, figures, optional videos).
     python evaluate.py runs/ViewPlanning-v1/ppo_seed0_* --episodes 100 --out reports/ppo
     python evaluate.py --env ViewPlanning-v1 four-view uniform random --episodes 20
     python evaluate.py policies/InstrumentGrasp-v1/sac --baselines scripted-grasp,squeeze --video
-    python evaluate.py model.zip --env InstrumentGrasp-v1
+    python evaluate.py policy.zip --env InstrumentGrasp-v1      # any run's exported policy
     python evaluate.py model.zip --env ViewPlanning-v1 --raw-observations  # not normalised
 
-Sources are run folders (their best model; --final-model for the last one), model .zip files
-(a zip inside a run folder takes the run's config; a lone one needs --env, and its
+Sources are run folders (their best model; --final-model for the last one; a shipped folder's
+policy.zip), model .zip files (a zip inside a run folder takes the run's config; a lone one
+needs --env, and unless it is a policy.zip, which carries its observation statistics, its
 vecnormalize.pkl beside it or --raw-observations) or baseline names:
 ViewPlanning: four-view, uniform, random, greedy-oracle (privileged: it reads the ground
 truth); InstrumentGrasp: scripted-grasp, squeeze, random, privileged-grasp (the script
@@ -31,7 +32,13 @@ from liuxing_envs.opengl import mujoco_import_problem, use_headless_default
 
 use_headless_default()
 
-from agents.config import MAX_SEED, ConfigError, parse_assignments, script_parser  # noqa: E402
+from agents.config import (  # noqa: E402
+    MAX_SEED,
+    ConfigError,
+    parse_assignments,
+    script_parser,
+    show_package_progress,
+)
 
 #: The envs' splits, written out so --help needs no env import (a test keeps them in step).
 OBJECT_SPLITS = ("train", "validation", "held_out", "all", "procedural")
@@ -57,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--raw-observations",
         action="store_true",
         help="a lone model file was trained without observation normalisation (without this, "
-        "its vecnormalize.pkl must lie beside it)",
+        "its vecnormalize.pkl must lie beside it, unless it is a policy.zip)",
     )
     episodes = parser.add_argument_group("episodes")
     episodes.add_argument("--episodes", type=int, default=100, help="episodes per contestant")
@@ -118,6 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    show_package_progress()
     # Flags that only shape another flag's output are refused where they would do nothing.
     if args.video_episodes is not None and not args.video:
         parser.error("--video-episodes sets how many episodes each video shows; add --video")

@@ -25,7 +25,12 @@ from liuxing_envs.opengl import mujoco_import_problem, use_headless_default
 use_headless_default()
 
 from agents import interrupts  # noqa: E402
-from agents.config import ConfigError, parse_assignments, script_parser  # noqa: E402
+from agents.config import (  # noqa: E402
+    ConfigError,
+    parse_assignments,
+    script_parser,
+    show_package_progress,
+)
 from agents.run_folder import RunFolderError  # noqa: E402
 from agents.workers import WorkerDied  # noqa: E402
 
@@ -80,10 +85,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--torch-threads", type=int, help="torch CPU threads (default: 1)")
     logs = parser.add_argument_group("evaluation, checkpoints and logs")
     logs.add_argument("--eval-freq", type=int, help="env steps between evaluations (0: none)")
-    logs.add_argument("--eval-episodes", type=int, help="episodes per periodic evaluation")
+    logs.add_argument(
+        "--eval-episodes",
+        type=int,
+        help="episodes per periodic evaluation (default: one per 1,000 steps, 5 to 20)",
+    )
     logs.add_argument("--save-freq", type=int, help="env steps between checkpoints (0: none)")
     logs.add_argument(
-        "--final-episodes", type=int, help="held-out episodes of the final comparison (0: skip)"
+        "--final-episodes",
+        type=int,
+        help="held-out episodes of the final comparison (0: skip; default: one per 1,000 "
+        "steps, 5 to 50)",
     )
     logs.add_argument(
         "--run-dir", help="the run's folder (default: LOG_FOLDER/ENV/ALGO_seedS_TIME)"
@@ -103,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    show_package_progress()
     # A scheduler's SIGTERM (pre-emption, `kill`) saves a checkpoint just as Ctrl-C does.
     interrupts.install()
     if args.run_dir and args.log_folder:

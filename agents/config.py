@@ -67,6 +67,15 @@ def script_parser(prog: str, doc: str) -> argparse.ArgumentParser:
     )
 
 
+def show_package_progress() -> None:
+    """Let the package's INFO messages through to stderr (a slow first preparation of an
+    object set, say) in a command-line script; library users choose their own logging."""
+    import logging
+
+    logging.basicConfig(format="%(message)s", level=logging.WARNING)
+    logging.getLogger("liuxing_envs").setLevel(logging.INFO)
+
+
 def safe_load(text: str):
     """``yaml.safe_load`` that also reads ``1e-4`` as a float; never constructs objects."""
     return yaml.load(text, Loader=_Loader)  # noqa: S506 (a SafeLoader subclass)

@@ -103,13 +103,18 @@ def policy_contestant(
     """A run folder (its best model, else its final one) or a model zip. A zip inside a run
     folder (or its ``checkpoints/``) takes the run's config and normaliser; a lone zip needs
     ``env_id``, its algorithm is read from the zip unless ``algo`` is given, and it needs its
-    normaliser beside it (named as in a run folder) unless ``raw_observations``."""
+    normaliser beside it (named as in a run folder) unless it is a run's exported ``policy.zip``
+    (which takes raw observations) or ``raw_observations``."""
     path = Path(path)
     if not path.exists():
         raise ContestantError(f"{str(path)!r} does not exist (give a run folder or a model .zip)")
     if path.is_dir():
         config = _read_run_config(path)
-        model_path, normalizer_path = _run_model_files(path, best)
+        model_path, normalizer_path = run_folder.policy_files(path, best)
+        if not model_path.is_file():
+            raise ContestantError(
+                f"run folder {str(path)!r} has no {model_path.name}: has it finished?"
+            )
     else:
         run_dir = _run_folder_of(path)
         config = _read_run_config(run_dir) if run_dir is not None else None
@@ -122,7 +127,9 @@ def policy_contestant(
             )
         env_id, algo = config["env_id"], config["algo"]
         env_kwargs = dict(config.get("env_kwargs") or {})
-        normalize = bool(config.get("normalize"))
+        normalize = bool(config.get("normalize")) and not run_folder.takes_raw_observations(
+            model_path
+        )
         seed = config.get("seed")
     else:
         if env_id is None:
@@ -139,10 +146,12 @@ def policy_contestant(
         # Without a run's config, the statistics saved beside the file (as a run folder
         # names them) say it was trained with normalisation; a zip copied without them would
         # act on raw observations, which the spaces check cannot catch.
-        normalize = normalizer_path.is_file()
-        if not normalize and not raw_observations:
+        exported = run_folder.takes_raw_observations(model_path)
+        normalize = normalizer_path.is_file() and not exported
+        if not normalize and not exported and not raw_observations:
             raise ContestantError(
-                f"{str(model_path)!r} is not in a run folder and has no {normalizer_path.name} "
+                f"{str(model_path)!r} is not in a run folder, is no exported policy.zip and "
+                f"has no {normalizer_path.name} "
                 "beside it, so whether it was trained on normalised observations is unknown: "
                 "evaluate its run folder, put its normaliser beside it under that name, or "
                 "pass --raw-observations if it was trained without one"
@@ -221,17 +230,6 @@ def _read_run_config(run_dir: Path) -> dict:
     except ValueError as error:
         raise ContestantError(f"{str(run_dir)!r}: {error}") from error
     return config
-
-
-def _run_model_files(run_dir: Path, best: bool) -> tuple[Path, Path]:
-    candidates = [(run_folder.FINAL_MODEL, run_folder.FINAL_NORMALIZER)]
-    if best:
-        candidates.insert(0, (run_folder.BEST_MODEL, run_folder.BEST_NORMALIZER))
-    for model, normalizer in candidates:
-        if (run_dir / model).is_file():
-            return run_dir / model, run_dir / normalizer
-    names = " or ".join(model for model, _ in candidates)
-    raise ContestantError(f"run folder {str(run_dir)!r} has no {names}: has it finished?")
 
 
 def _run_folder_of(model_path: Path) -> Path | None:
@@ -383,6 +381,9 @@ def build_contestants(
         for key in (task.split_kwarg, task.explicit_scene_kwarg):
             contestant.env_kwargs.pop(key, None)
         contestant.env_kwargs.update(env_kwargs)
+    first_policies: dict[str, Contestant] = {}
+    for contestant in contestants:
+        first_policies.setdefault(contestant.env_id, contestant)
     for current in env_ids:
         check_env_kwargs(current, env_kwargs)
         allowed = baseline_names(current)
@@ -393,7 +394,7 @@ def build_contestants(
                     f"exists) nor a baseline of {current}{closest(name, allowed)}; its "
                     f"baselines: {', '.join(allowed)}"
                 )
-        first_policy = next((c for c in contestants if c.env_id == current), None)
+        first_policy = first_policies.get(current)
         scene = dict(first_policy.env_kwargs) if first_policy else dict(env_kwargs)
         wanted = list(named_baselines)
         if baselines is None and not named_baselines:

@@ -96,6 +96,20 @@ def check_demonstrations(env_id: str, algo: str, spec) -> dict | None:
     return resolved
 
 
+#: A run shorter than its demonstrations gets one expert episode per this many training steps
+#: (at least one) and at most as many behaviour-cloning steps as it trains, so that a quick
+#: run is quick.
+STEPS_PER_DEMONSTRATION = 1_000
+
+
+def demonstration_sizes(config: dict) -> tuple[int, int]:
+    """The expert episodes and behaviour-cloning steps a run takes: its ``demonstrations``
+    entry's, cut for runs shorter than them (see STEPS_PER_DEMONSTRATION)."""
+    spec, steps = config["demonstrations"], config["n_timesteps"]
+    episodes = min(spec["episodes"], max(1, steps // STEPS_PER_DEMONSTRATION))
+    return episodes, min(spec["pretrain_steps"], steps)
+
+
 def seed_replay_buffer(model, config: dict) -> dict:
     """Adds ``config["demonstrations"]`` episodes of the expert to ``model.replay_buffer``
     and to its normaliser's statistics; returns what was added."""
@@ -105,14 +119,15 @@ def seed_replay_buffer(model, config: dict) -> dict:
             "demonstrations need optimize_memory_usage: false (that buffer reads each next "
             "observation from the following row)"
         )
-    transitions, successes = record_demonstrations(config)
+    episodes, pretrain_steps = demonstration_sizes(config)
+    transitions, successes = record_demonstrations(config, episodes)
     # A buffer row holds one transition per training env; rows are sampled as independent
     # transitions (each stores its own next observation), so demonstrations fill them in
     # order, and a remainder short of a whole row is left out.
     width = buffer.n_envs
     if len(transitions) // width > buffer.buffer_size:
         raise ConfigError(
-            f"demonstrations: {config['demonstrations']['episodes']} episodes gave "
+            f"demonstrations: {episodes} episodes gave "
             f"{len(transitions)} transitions, {len(transitions) // width} buffer rows at "
             f"n_envs={width}, more than buffer_size={buffer.buffer_size}: the ring buffer "
             "would overwrite its own demonstrations before the first update; give fewer "
@@ -132,25 +147,26 @@ def seed_replay_buffer(model, config: dict) -> dict:
     if normalizer is not None:
         for key, statistics in normalizer.obs_rms.items():
             statistics.update(np.array([t.observation[key] for t in transitions[:added]]))
-    pretrain_steps = config["demonstrations"]["pretrain_steps"]
     if pretrain_steps:
         pretrain(model, transitions, pretrain_steps, seed=config["seed"])
     return {
         "expert": config["demonstrations"]["expert"],
-        "episodes": config["demonstrations"]["episodes"],
+        "episodes": episodes,
+        "pretrain_steps": pretrain_steps,
         "transitions": added,
         "successes": successes,
     }
 
 
-def record_demonstrations(config: dict) -> tuple[list[Transition], int]:
-    """The expert's episodes in the training env, step by step, and how many succeeded."""
+def record_demonstrations(config: dict, episodes: int) -> tuple[list[Transition], int]:
+    """``episodes`` of the expert in the training env, step by step, and how many
+    succeeded."""
     spec = config["demonstrations"]
     env = make_env(config["env_id"], config["env_kwargs"])
     expert = EXPERTS[family(config["env_id"])][spec["expert"]](env)
     action_size = env.action_space.shape[0]  # the gripper is the last dimension
     largest = np.array([spec["action_noise"]] * (action_size - 1) + [spec["gripper_noise"]])
-    sweep = np.linspace(0.0, 1.0, spec["episodes"])[:, None] * largest
+    sweep = np.linspace(0.0, 1.0, episodes)[:, None] * largest
     first_seed = config["seed"] + DEMONSTRATION_SEED_OFFSET
     rng = np.random.default_rng(first_seed)
     transitions, successes = [], 0

@@ -7,6 +7,10 @@ Layout (file names are constants here, so train.py, evaluate.py and tests agree)
                               ``-dirty``; a resume's: git_diff_resume<k>.patch)
     <run>/model.zip           final policy            (+ vecnormalize.pkl when normalising)
     <run>/best_model.zip      best periodic evaluation (+ best_vecnormalize.pkl)
+    <run>/policy.zip          the best (else final) policy with its observation statistics
+                              inside: plain ``PPO.load`` / ``SAC.load`` anywhere the package
+                              is installed, acting on the env's raw observations (written when
+                              training ends; what a shipped policy keeps)
     <run>/checkpoints/        model_<steps>_steps.zip, replay_buffer_<steps>_steps.pkl (SAC),
                               vecnormalize_<steps>_steps.pkl, curriculum_<steps>_steps.json
                               (the start curriculum's level, when it advances)
@@ -47,6 +51,7 @@ FINAL_MODEL = "model.zip"
 FINAL_NORMALIZER = "vecnormalize.pkl"
 BEST_MODEL = "best_model.zip"
 BEST_NORMALIZER = "best_vecnormalize.pkl"
+POLICY = "policy.zip"
 CHECKPOINTS = "checkpoints"
 EVALUATIONS = "evaluations.csv"
 MONITOR = "monitor"
@@ -64,6 +69,7 @@ ENTRIES = (
     FINAL_NORMALIZER,
     BEST_MODEL,
     BEST_NORMALIZER,
+    POLICY,
     CHECKPOINTS,
     EVALUATIONS,
     MONITOR,
@@ -617,7 +623,9 @@ def _after_steps_in_time_order(files: dict[Path, MonitorFile], steps: int) -> se
 
 
 def forget(run_dir: Path, forgetting: Forgetting) -> None:
-    """Drops what :func:`forget_after_checkpoint` found."""
+    """Drops what :func:`forget_after_checkpoint` found, and the exported policy, which the
+    resumed run writes again when it ends."""
+    (Path(run_dir) / POLICY).unlink(missing_ok=True)
     for path in forgetting.partial_files:
         path.unlink(missing_ok=True)
     if forgetting.dropped_evaluations:
@@ -648,19 +656,47 @@ def best_model_steps(run_dir: Path) -> int | None:
         return None
 
 
+def policy_files(run_dir: Path, best: bool = True) -> tuple[Path, Path | None]:
+    """The model zip to score a run by, and where its normaliser would be (None for an
+    exported policy, which takes raw observations): the best model when ``best`` and the run
+    has one, else its final model, else (a shipped folder, when ``best``) its exported
+    policy. The model may not exist."""
+    run_dir = Path(run_dir)
+    if best and (run_dir / BEST_MODEL).is_file():
+        return run_dir / BEST_MODEL, run_dir / BEST_NORMALIZER
+    if best and not (run_dir / FINAL_MODEL).is_file() and (run_dir / POLICY).is_file():
+        return run_dir / POLICY, None
+    return run_dir / FINAL_MODEL, run_dir / FINAL_NORMALIZER
+
+
+#: The attribute an exported policy saves (True): it acts on the env's raw observations.
+RAW_OBSERVATIONS = "liuxing_takes_raw_observations"
+
+
+def takes_raw_observations(model_path: Path) -> bool:
+    """Whether an SB3 model zip is an exported policy (``policy.zip``), which acts on the
+    env's raw observations (any statistics it was trained behind are inside it) and so needs
+    no normaliser file; False for a zip that cannot be read."""
+    return saved_attribute(Path(model_path), RAW_OBSERVATIONS) is True
+
+
 #: What a shipped policy keeps of its run: enough to load, evaluate and reproduce it.
-SHIPPED_FILES = (CONFIG, BEST_MODEL, BEST_NORMALIZER, EVALUATIONS, LEARNING_CURVE, RESULT, GIT_DIFF)
+SHIPPED_FILES = (CONFIG, POLICY, EVALUATIONS, LEARNING_CURVE, RESULT, GIT_DIFF)
 
 
 def ship(run_dir: Path, destination: Path) -> Path:
-    """Copy a run's best policy and its record into ``destination``: a slim run folder (no
-    checkpoints, replay buffers or logs) that ``load_policy`` and evaluate.py read as is."""
+    """Copy a finished run's exported policy and its record into ``destination``: a slim run
+    folder (no checkpoints, replay buffers or logs) that ``load_policy``, evaluate.py and plain
+    SB3 read as is."""
     import shutil
 
     run_dir, destination = Path(run_dir), Path(destination)
     read_config(run_dir)
-    if not (run_dir / BEST_MODEL).is_file():
-        raise RunFolderError(f"{str(run_dir)!r} has no {BEST_MODEL} to ship")
+    if not (run_dir / POLICY).is_file():
+        raise RunFolderError(
+            f"{str(run_dir)!r} has no {POLICY} to ship: it is written when training ends "
+            f"(finish the run with: python train.py --resume {run_dir})"
+        )
     destination.mkdir(parents=True, exist_ok=True)
     resume_patches = sorted(path.name for path in run_dir.glob("git_diff_resume*.patch"))
     for name in (*SHIPPED_FILES, *resume_patches):

@@ -59,7 +59,7 @@ from agents.curriculum import (
     level_callback,
     start_settings,
 )
-from agents.demonstrations import check_demonstrations, seed_replay_buffer
+from agents.demonstrations import check_demonstrations, demonstration_sizes, seed_replay_buffer
 from agents.evaluation import (
     SB3Policy,
     compare_with_baseline,
@@ -72,7 +72,12 @@ from agents.plotting import plot_learning_curve
 from agents.spaces import describe_space, mismatched_spaces
 from agents.workers import WORKER_GONE, WorkerDied
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
-from liuxing_envs.policy_parts import ACTIVATIONS, FEATURES_EXTRACTORS, OPTIMIZERS
+from liuxing_envs.policy_parts import (
+    ACTIVATIONS,
+    FEATURES_EXTRACTORS,
+    OPTIMIZERS,
+    with_embedded_normalizer,
+)
 from liuxing_envs.validation import is_number
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}
@@ -93,6 +98,11 @@ DEFAULT_EVAL_FREQ = 5_000  # env steps between periodic evaluations
 DEFAULT_EVAL_EPISODES = 20
 DEFAULT_SAVE_FREQ = 10_000  # env steps between checkpoints
 DEFAULT_FINAL_EPISODES = 50
+#: A run not told how many episodes to evaluate on gets one per this many training steps (at
+#: least MIN_AUTO_EPISODES, at most the defaults above), so a quick run's evaluations are as
+#: quick as its training.
+STEPS_PER_AUTO_EPISODE = 1_000
+MIN_AUTO_EPISODES = 5
 DEFAULT_RUNS_DIR = Path("runs")
 #: One torch thread: on a small machine the envs need the other cores, and PPO's minibatch
 #: updates ran 7x slower with 2 threads competing with 4 envs on 2 cores (0.73 s vs 5.1 s).
@@ -136,9 +146,9 @@ def resolve_config(
     n_envs: int | None = None,
     vec_env: str = DEFAULT_VEC_ENV,
     eval_freq: int = DEFAULT_EVAL_FREQ,
-    eval_episodes: int = DEFAULT_EVAL_EPISODES,
+    eval_episodes: int | None = None,
     save_freq: int = DEFAULT_SAVE_FREQ,
-    final_episodes: int = DEFAULT_FINAL_EPISODES,
+    final_episodes: int | None = None,
     device: str = DEFAULT_DEVICE,
     tensorboard: bool = False,
     torch_threads: int = DEFAULT_TORCH_THREADS,
@@ -148,7 +158,8 @@ def resolve_config(
     """Everything a run needs, checked: the hyper-parameter file's entry for ``env_id`` with
     ``hyperparams`` and ``env_kwargs`` merged over it and the explicit arguments on top.
     ``init_from`` names a trained run whose policy the new run starts from, and with
-    ``init_replay_buffer`` its newest checkpoint's replay buffer too."""
+    ``init_replay_buffer`` its newest checkpoint's replay buffer too. ``eval_episodes`` and
+    ``final_episodes`` left None scale with the run (:func:`auto_episodes`)."""
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
@@ -166,13 +177,18 @@ def resolve_config(
     normalize = harness.get("normalize", False)
     if not isinstance(normalize, bool):
         raise ConfigError(f"normalize must be true or false, got {normalize!r}")
+    n_timesteps = int_at_least(
+        "timesteps", n_timesteps if n_timesteps is not None else harness.get("n_timesteps")
+    )
+    if eval_episodes is None:
+        eval_episodes = auto_episodes(n_timesteps, DEFAULT_EVAL_EPISODES)
+    if final_episodes is None:
+        final_episodes = auto_episodes(n_timesteps, DEFAULT_FINAL_EPISODES)
     config = {
         "env_id": env_id,
         "algo": algo,
         "seed": int_at_least("seed", seed, minimum=0, maximum=MAX_SEED),
-        "n_timesteps": int_at_least(
-            "timesteps", n_timesteps if n_timesteps is not None else harness.get("n_timesteps")
-        ),
+        "n_timesteps": n_timesteps,
         "n_envs": int_at_least(
             "n-envs", n_envs if n_envs is not None else harness.get("n_envs", 1)
         ),
@@ -207,6 +223,16 @@ def resolve_config(
     return config
 
 
+def _episodes(count: int, of: str) -> str:
+    return f"{count} {of} episode{'' if count == 1 else 's'}"
+
+
+def auto_episodes(n_timesteps: int, most: int) -> int:
+    """Episodes for an evaluation of a run of ``n_timesteps`` steps that was not given its
+    size: one per STEPS_PER_AUTO_EPISODE steps, between MIN_AUTO_EPISODES and ``most``."""
+    return max(MIN_AUTO_EPISODES, min(most, n_timesteps // STEPS_PER_AUTO_EPISODE))
+
+
 def check_init_from(
     source: str, env_id: str, algo: str, normalize: bool, replay_buffer: bool = False
 ) -> dict:
@@ -229,9 +255,15 @@ def check_init_from(
             f"--init-from {source!r} has normalize: {bool(trained.get('normalize'))} and this "
             f"run normalize: {normalize}; its weights expect the other inputs"
         )
-    model_path, normalizer_path = policy_files(run_dir, best=True)
+    model_path, normalizer_path = run_folder.policy_files(run_dir, best=True)
     if not model_path.is_file():
         raise ConfigError(f"--init-from {source!r} has no {model_path.name}")
+    if normalize and normalizer_path is None:
+        raise ConfigError(
+            f"--init-from {source!r} keeps only {model_path.name}, whose observation statistics "
+            "are fixed inside it; a run that normalises observations goes on from the run "
+            "folder it was exported from"
+        )
     if normalize and not normalizer_path.is_file():
         raise ConfigError(f"--init-from {source!r} has no {normalizer_path.name}")
     chosen = {
@@ -854,9 +886,19 @@ def _start(config: dict, run_dir: Path, trained: TrainedStart | None):
                 run_folder.use_replay_buffer(model, trained.replay_buffer)
         if config.get("demonstrations"):
             spec = config["demonstrations"]
+            episodes, pretrain_steps = demonstration_sizes(config)
+            cut = (episodes, pretrain_steps) != (spec["episodes"], spec["pretrain_steps"])
             print(
-                f"seeding the replay buffer with {spec['episodes']} {spec['expert']} episodes "
-                "(hyper-parameter demonstrations; null skips them) ...",
+                f"seeding the replay buffer with {_episodes(episodes, spec['expert'])}"
+                + (f", then {pretrain_steps} behaviour-cloning steps" if pretrain_steps else "")
+                + " (hyper-parameter demonstrations; null skips them"
+                + (
+                    f"; cut from {spec['episodes']} episodes and {spec['pretrain_steps']} steps "
+                    f"for a run of {config['n_timesteps']} steps"
+                    if cut
+                    else ""
+                )
+                + ") ...",
                 flush=True,
             )
             added = seed_replay_buffer(model, config)
@@ -865,7 +907,8 @@ def _start(config: dict, run_dir: Path, trained: TrainedStart | None):
             )
             print(
                 f"replay buffer seeded with {added['transitions']} transitions of "
-                f"{added['episodes']} {added['expert']} episodes ({added['successes']} successes)"
+                f"{_episodes(added['episodes'], added['expert'])} ({added['successes']} "
+                "succeeded)"
             )
     except BaseException:
         _close_opened(venv, evaluation)
@@ -1333,6 +1376,7 @@ def _save_trained(model, config: dict, run_dir: Path, level, clock: TrainingCloc
         run_folder.save_atomically(normalizer.save, run_dir / run_folder.FINAL_NORMALIZER)
     run_folder.save_atomically(model.save, run_dir / run_folder.FINAL_MODEL)
     save_checkpoint(model, run_dir, level)  # so a larger --timesteps can continue a finished run
+    export_policy(run_dir, config["algo"])
     plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
     result = {"timesteps": int(model.num_timesteps), "train_seconds": seconds}
     if level is not None:
@@ -1401,14 +1445,20 @@ def _check_saved_config(config: dict, path: Path) -> None:
 
 
 def load_policy(run_dir: Path, config: dict | None = None, best: bool = True) -> SB3Policy:
-    """The run's best model (by periodic evaluation) or its final one, with its normaliser.
-    Falls back to the final model when no evaluation ran."""
+    """The run's best model (by periodic evaluation) or its final one, with its normaliser;
+    a shipped folder's exported policy. Falls back to the final model when no evaluation
+    ran."""
     run_dir = Path(run_dir)
     config = config or run_folder.read_config(run_dir)
-    model_path, normalizer_path = policy_files(run_dir, best)
+    model_path, normalizer_path = run_folder.policy_files(run_dir, best)
     if not model_path.is_file():
         raise run_folder.RunFolderError(f"{str(run_dir)!r} has no {model_path.name}")
-    if config.get("normalize") and not normalizer_path.is_file():
+    if (
+        config.get("normalize")
+        and normalizer_path is not None
+        and not normalizer_path.is_file()
+        and not run_folder.takes_raw_observations(model_path)
+    ):
         raise run_folder.RunFolderError(
             f"{str(run_dir)!r} trained with observation normalisation, but its "
             f"{normalizer_path.name} is missing: its policy cannot be scored on raw observations"
@@ -1416,9 +1466,18 @@ def load_policy(run_dir: Path, config: dict | None = None, best: bool = True) ->
     return SB3Policy.load(ALGO_CLASSES[config["algo"]], model_path, normalizer_path)
 
 
-def policy_files(run_dir: Path, best: bool = True) -> tuple[Path, Path]:
-    """A run's model zip and normaliser: its best ones when ``best`` and it has them, else
-    its final ones (which may not exist)."""
-    if best and (run_dir / run_folder.BEST_MODEL).is_file():
-        return run_dir / run_folder.BEST_MODEL, run_dir / run_folder.BEST_NORMALIZER
-    return run_dir / run_folder.FINAL_MODEL, run_dir / run_folder.FINAL_NORMALIZER
+def export_policy(run_dir: Path, algo: str) -> Path:
+    """Write the run's ``policy.zip``: its best model (else its final one) with the
+    observation statistics it was trained on moved inside it
+    (:func:`~liuxing_envs.policy_parts.with_embedded_normalizer`), so that plain
+    ``PPO.load`` / ``SAC.load`` and ``predict`` on raw observations act as the run's policy
+    does, wherever the package is installed."""
+    run_dir = Path(run_dir)
+    model_path, normalizer_path = run_folder.policy_files(run_dir, best=True)
+    model = run_folder.load_model(ALGO_CLASSES[algo], model_path, device="cpu")
+    if normalizer_path is not None and normalizer_path.is_file():
+        model = with_embedded_normalizer(model, run_folder.load_normalizer(normalizer_path))
+    setattr(model, run_folder.RAW_OBSERVATIONS, True)
+    path = run_dir / run_folder.POLICY
+    run_folder.save_atomically(model.save, path)
+    return path

@@ -8,7 +8,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from agents.config import ConfigError
-from agents.demonstrations import check_demonstrations, seed_replay_buffer
+from agents.demonstrations import check_demonstrations, demonstration_sizes, seed_replay_buffer
 from agents.evaluation import make_env
 
 ENV_ID = "InstrumentGraspUnguarded-v1"
@@ -54,10 +54,21 @@ def _config(episodes: int) -> dict:
         "env_id": ENV_ID,
         "env_kwargs": ENV_KWARGS,
         "seed": SEED,
+        "n_timesteps": 100_000,
         "demonstrations": check_demonstrations(
             ENV_ID, "sac", {"expert": "privileged-grasp", "episodes": episodes}
         ),
     }
+
+
+@pytest.mark.parametrize(
+    "steps, sizes", [(300, (1, 300)), (12_000, (12, 5_000)), (500_000, (50, 5_000))]
+)
+def test_a_run_shorter_than_its_demonstrations_takes_as_many_as_it_trains(steps, sizes):
+    """A 300-step run spent minutes on 50 expert episodes and 5,000 cloning steps."""
+    spec = {"expert": "privileged-grasp", "episodes": 50, "pretrain_steps": 5_000}
+    spec = check_demonstrations(ENV_ID, "sac", spec)
+    assert demonstration_sizes({"demonstrations": spec, "n_timesteps": steps}) == sizes
 
 
 @pytest.mark.slow

@@ -522,7 +522,7 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
             "--raw-observations is for a lone model file trained without normalisation",
         ),
         (
-            ["policies/ViewPlanning-v1/ppo/best_model.zip", "--raw-observations"],
+            ["policies/ViewPlanning-v1/ppo/policy.zip", "--raw-observations"],
             "no source given is one (a run folder's config.yml",
         ),
         # The real mistake comes first: a mistyped run folder, no source at all.
@@ -560,8 +560,8 @@ def test_a_run_folder_given_as_dot_is_labelled_with_its_name(tmp_path, monkeypat
     monkeypatch.chdir(run_dir)
     (policy,) = build_contestants(["."], baselines=[])
     assert policy.label == "ppo_seed4"
-    (lone,) = build_contestants([run_folder.BEST_MODEL], env_id="ViewPlanning-v1", baselines=[])
-    assert lone.label == "ppo_seed4/best_model"
+    (lone,) = build_contestants([run_folder.POLICY], env_id="ViewPlanning-v1", baselines=[])
+    assert lone.label == "ppo_seed4/policy"
 
 
 def test_a_run_folder_whose_config_names_another_algorithm_fails_cleanly(tmp_path):
@@ -570,7 +570,7 @@ def test_a_run_folder_whose_config_names_another_algorithm_fails_cleanly(tmp_pat
     config = run_dir / "config.yml"
     config.write_text(config.read_text().replace("\nalgo: ppo\n", "\nalgo: sac\n"))
     stderr = evaluate_fails(str(run_dir))
-    assert "best_model.zip' is not a readable SAC model zip" in stderr
+    assert "policy.zip' is not a readable SAC model zip" in stderr
 
 
 def test_a_report_folder_that_is_a_file_fails_cleanly(tmp_path):
@@ -600,7 +600,7 @@ def test_a_report_folder_that_cannot_take_files_fails_cleanly():
 def test_a_corrupt_model_zip_fails_cleanly(tmp_path):
     run = tmp_path / "ppo_run"
     shutil.copytree(SHIPPED_VIEW_POLICY, run)
-    model = run / run_folder.BEST_MODEL
+    model = run / run_folder.POLICY
     model.write_bytes(model.read_bytes()[:1000])
     assert "is not a readable PPO model zip" in evaluate_fails(str(run))
 
@@ -647,29 +647,48 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
     )
 
 
+def old_style_copy(policy_zip: Path, algo_class, destination: Path) -> Path:
+    """``policy_zip``'s model saved as a run's other model files are: nothing in it says
+    whether it acts on raw observations."""
+    model = algo_class.load(policy_zip, device="cpu")
+    delattr(model, run_folder.RAW_OBSERVATIONS)
+    model.save(destination)
+    return destination
+
+
 @pytest.mark.parametrize(
     "env_id, algo", [("ViewPlanning-v1", "ppo"), ("InstrumentGrasp-v1", "sac")]
 )
-def test_a_lone_shipped_policy_zip_names_its_own_algorithm(tmp_path, env_id, algo):
+def test_a_lone_shipped_policy_zip_names_its_own_algorithm_and_needs_no_flag(
+    tmp_path, env_id, algo
+):
+    from stable_baselines3 import PPO, SAC
+
     from agents.contestants import ContestantError, policy_contestant
 
     lone = tmp_path / "policy.zip"
-    shutil.copy(REPO / "policies" / env_id / algo / run_folder.BEST_MODEL, lone)
-    assert policy_contestant(lone, env_id=env_id, raw_observations=True).group == algo
+    shutil.copy(REPO / "policies" / env_id / algo / run_folder.POLICY, lone)
+    assert policy_contestant(lone, env_id=env_id).group == algo  # it takes raw observations
     other = "sac" if algo == "ppo" else "ppo"
     with pytest.raises(ContestantError, match=f"saved by {algo}, not {other}"):
         policy_contestant(lone, env_id=env_id, algo=other)
+    # Any other model zip alone may need statistics it does not have: refused, by name.
+    old = old_style_copy(lone, {"ppo": PPO, "sac": SAC}[algo], tmp_path / "model.zip")
     with pytest.raises(ContestantError, match="vecnormalize.pkl beside it.*--raw-observations"):
-        policy_contestant(lone, env_id=env_id)
+        policy_contestant(old, env_id=env_id)
+    assert policy_contestant(old, env_id=env_id, raw_observations=True).group == algo
 
 
 def test_a_normaliser_of_another_run_beside_a_model_is_refused_before_any_episode(tmp_path):
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
     from agents.contestants import ContestantError, policy_contestant
 
-    lone = tmp_path / "policy.zip"
-    shutil.copy(SHIPPED_VIEW_POLICY / run_folder.BEST_MODEL, lone)
-    grasp_stats = REPO / "policies" / "InstrumentGrasp-v1" / "sac" / run_folder.BEST_NORMALIZER
-    shutil.copy(grasp_stats, tmp_path / run_folder.FINAL_NORMALIZER)
+    lone = old_style_copy(SHIPPED_VIEW_POLICY / run_folder.POLICY, PPO, tmp_path / "model.zip")
+    grasp_stats = VecNormalize(DummyVecEnv([lambda: gym.make("InstrumentGrasp-v1")]))
+    grasp_stats.save(tmp_path / run_folder.FINAL_NORMALIZER)
     with pytest.raises(ContestantError, match="normalises observations of {forces.*different runs"):
         policy_contestant(lone, env_id="ViewPlanning-v1")
 

@@ -70,11 +70,13 @@ def test_wheel_ships_assets_and_loads_the_scene_without_the_checkout(wheel, tmp_
     assert out[1] == "6"
 
 
-def _throwaway_venv(folder: Path, wheel: Path) -> Path:
-    """A virtual environment holding only ``wheel``, installed without its dependencies; it
-    reads those from this interpreter's site-packages (a path, so their ``.pth`` files, among
-    them the editable install's that puts the checkout on the path, are not run). Downloads
-    nothing. Returns its python."""
+@pytest.fixture(scope="module")
+def wheel_python(wheel, tmp_path_factory) -> Path:
+    """The python of a virtual environment holding only ``wheel``, installed without its
+    dependencies; it reads those from this interpreter's site-packages (a path, so their
+    ``.pth`` files, among them the editable install's that puts the checkout on the path, are
+    not run). Downloads nothing."""
+    folder = tmp_path_factory.mktemp("wheel_venv")
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(folder)], check=True)
     python = folder / "bin" / "python"
     purelib = subprocess.run(
@@ -89,28 +91,50 @@ def _throwaway_venv(folder: Path, wheel: Path) -> Path:
     return python
 
 
-_ACT_FROM_THE_WHEEL = """
-import json, sys
-import gymnasium as gym
-import liuxing_envs
-from stable_baselines3 import PPO
+def run_in_wheel_venv(python: Path, script: str, *args: str, cwd: Path) -> dict:
+    """``script`` run by the wheel's venv (the session's disk cache and GL settings, but
+    nothing that puts the checkout on the path); the JSON its last line prints."""
+    ran = subprocess.run(
+        [str(python), "-c", script, *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"},
+    )
+    assert ran.returncode == 0, ran.stderr[-3000:]
+    return json.loads(ran.stdout.splitlines()[-1])
 
+
+#: Opens each script run from the wheel: the checkout's agents/ must not be importable.
+_NO_CHECKOUT = """
+import json, sys
 try:
     import agents
 except ModuleNotFoundError:
     pass
 else:
     sys.exit(f"the checkout's agents/ is importable: {agents.__file__}")
+import gymnasium as gym
+import liuxing_envs
+"""
+
+_ACT_FROM_THE_WHEEL = (
+    _NO_CHECKOUT
+    + """
+from stable_baselines3 import PPO
+
 model = PPO.load(sys.argv[1], device="cpu")
 env = gym.make("ViewPlanning-v1", object_set="train")
 observation, _ = env.reset(seed=1_000_000)
 action, _ = model.predict(observation, deterministic=True)
 print(json.dumps({"package": liuxing_envs.__file__, "action": action.tolist()}))
 """
+)
 
 
 @pytest.mark.slow
-def test_a_model_trained_here_loads_and_acts_from_the_installed_wheel_alone(wheel, tmp_path):
+def test_a_model_trained_here_loads_and_acts_from_the_installed_wheel_alone(wheel_python, tmp_path):
     """A saved model names its features extractor by import path: one that named the
     checkout's agents/ folder failed in a pip install with "No module named 'agents'"."""
     from stable_baselines3 import PPO
@@ -127,18 +151,7 @@ def test_a_model_trained_here_loads_and_acts_from_the_installed_wheel_alone(whee
         *("env_kwargs.object_set=train", "policy_kwargs.features_extractor=perception"),
     )
     model_file = run / "model.zip"
-    python = _throwaway_venv(tmp_path / "venv", wheel)
-    acted = subprocess.run(
-        [str(python), "-c", _ACT_FROM_THE_WHEEL, str(model_file)],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=600,
-        # The session's disk cache and GL settings, but nothing that puts the checkout on the path.
-        env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"},
-    )
-    assert acted.returncode == 0, acted.stderr[-3000:]
-    result = json.loads(acted.stdout.splitlines()[-1])
+    result = run_in_wheel_venv(wheel_python, _ACT_FROM_THE_WHEEL, str(model_file), cwd=tmp_path)
     assert not Path(result["package"]).is_relative_to(ROOT)  # the wheel's copy
     import gymnasium as gym
 
@@ -146,3 +159,85 @@ def test_a_model_trained_here_loads_and_acts_from_the_installed_wheel_alone(whee
     observation, _ = env.reset(seed=1_000_000)
     expected, _ = PPO.load(model_file, device="cpu").predict(observation, deterministic=True)
     np.testing.assert_array_equal(np.asarray(result["action"], dtype=expected.dtype), expected)
+
+
+#: A user's plain SB3 loop over a shipped policy: its policy.zip on the registered id, reset
+#: with given seeds; and SB3's own evaluate_policy on the id as registered.
+_SCORE_FROM_THE_WHEEL = (
+    _NO_CHECKOUT
+    + """
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.evaluation import evaluate_policy
+
+policy_zip, algo, env_id, env_kwargs, seeds, metric = sys.argv[1:]
+model = {"ppo": PPO, "sac": SAC}[algo].load(policy_zip, device="cpu")
+env = gym.make(env_id, **json.loads(env_kwargs))
+scores = []
+for seed in json.loads(seeds):
+    observation, info = env.reset(seed=seed)
+    done = False
+    while not done:
+        action, _ = model.predict(observation, deterministic=True)
+        observation, reward, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    scores.append(float(info[metric]))
+mean_return, _ = evaluate_policy(model, gym.make(env_id), n_eval_episodes=2)
+print(json.dumps({"scores": scores, "evaluate_policy": mean_return}))
+"""
+)
+
+SHIPPED_REPORT = ROOT / "reports" / "shipped" / "report.json"
+
+
+def shipped_policies() -> list[tuple[str, dict, dict]]:
+    """Each shipped policy folder with the report's entry for it and its task's metric."""
+    report = json.loads(SHIPPED_REPORT.read_text())
+    found = []
+    for env_id, entry in report["environments"].items():
+        for contestant in entry["contestants"]:
+            if contestant["kind"] == "policy":
+                found.append((env_id, contestant, entry["metric"]))
+    return found
+
+
+def test_the_shipped_report_scores_every_shipped_policy_by_its_policy_zip():
+    scored = {Path(c["model_file"]) for _, c, _ in shipped_policies()}
+    assert scored == {p.relative_to(ROOT) for p in (ROOT / "policies").glob("*/*/policy.zip")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", range(3))
+def test_a_shipped_policy_scores_its_report_from_the_installed_wheel_alone(
+    wheel_python, tmp_path, index
+):
+    """Plain ``SAC.load`` / ``PPO.load`` and ``predict`` on the env's raw observations, on
+    the registered v1 id's held-out split with the report's episode seeds: the report's
+    score, within its interval, and episode by episode."""
+    import gymnasium as gym
+
+    import liuxing_envs  # noqa: F401 (registers the ids)
+    from agents.run_folder import read_config
+
+    env_id, contestant, metric = shipped_policies()[index]
+    folder = ROOT / Path(contestant["model_file"]).parent
+    (split, held_out), *defaults = sorted(
+        contestant["env_kwargs"].items(), key=lambda item: not item[0].endswith("_set")
+    )
+    assert held_out == "held_out"
+    env = gym.make(env_id)
+    for name, value in defaults:  # the rest of the report's kwargs are the id's defaults
+        assert getattr(env.unwrapped, name) == value, name
+    env.close()
+    episodes = contestant["episodes"]
+    result = run_in_wheel_venv(
+        wheel_python,
+        _SCORE_FROM_THE_WHEEL,
+        *(str(folder / "policy.zip"), read_config(folder)["algo"], env_id),
+        *(json.dumps({split: "held_out"}), json.dumps([e["seed"] for e in episodes]), metric),
+        cwd=tmp_path,
+    )
+    reported = [float(e[metric]) for e in episodes]
+    low, high = contestant["summary"]["ci95"]
+    assert low <= np.mean(result["scores"]) <= high
+    np.testing.assert_allclose(result["scores"], reported, atol=1e-9)
+    assert np.isfinite(result["evaluate_policy"])

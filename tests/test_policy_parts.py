@@ -1,34 +1,39 @@
 """Policy parts shipped in the package: observation statistics carried inside a policy."""
 
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3 import SAC
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import liuxing_envs  # noqa: F401 (registers the ids)
-from agents import run_folder
 from liuxing_envs.policy_parts import NormalizedObservations, with_embedded_normalizer
-
-SHIPPED_GRASP = Path(__file__).resolve().parents[1] / "policies" / "InstrumentGrasp-v1" / "sac"
 
 
 @pytest.fixture(scope="module")
-def shipped_grasp():
-    """The shipped grasp policy and the VecNormalize it was trained behind."""
-    normalizer = run_folder.load_normalizer(SHIPPED_GRASP / "best_vecnormalize.pkl")
-    normalizer.training = False
-    return SAC.load(SHIPPED_GRASP / "best_model.zip", device="cpu"), normalizer
+def normalized_grasp(tmp_path_factory):
+    """A SAC model on InstrumentGrasp-v1 behind a VecNormalize whose statistics come from
+    random steps (far from zero mean and unit variance), saved as a run saves them."""
+    folder = tmp_path_factory.mktemp("normalized")
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("InstrumentGrasp-v1")]), norm_reward=False)
+    venv.seed(0)
+    venv.action_space.seed(0)
+    venv.reset()
+    for _ in range(150):
+        venv.step(np.array([venv.action_space.sample()]))
+    model = SAC("MultiInputPolicy", venv, seed=0, device="cpu")
+    model.save(folder / "model.zip")
+    venv.save(folder / "vecnormalize.pkl")
+    venv.training = False
+    return folder, venv
 
 
 def test_a_policy_with_its_normalizer_inside_acts_on_raw_observations_as_before(
-    shipped_grasp, tmp_path
+    normalized_grasp, tmp_path
 ):
-    model, normalizer = shipped_grasp
-    embedded = with_embedded_normalizer(
-        SAC.load(SHIPPED_GRASP / "best_model.zip", device="cpu"), normalizer
-    )
+    folder, normalizer = normalized_grasp
+    model = SAC.load(folder / "model.zip", device="cpu")
+    embedded = with_embedded_normalizer(SAC.load(folder / "model.zip", device="cpu"), normalizer)
     assert isinstance(embedded.actor.features_extractor, NormalizedObservations)
     embedded.save(tmp_path / "embedded.zip")
     reloaded = SAC.load(tmp_path / "embedded.zip", device="cpu")  # no VecNormalize file
@@ -47,17 +52,16 @@ def test_a_policy_with_its_normalizer_inside_acts_on_raw_observations_as_before(
 
 
 def test_the_evaluators_loader_applies_no_normalizer_file_to_a_policy_that_carries_one(
-    shipped_grasp, tmp_path
+    normalized_grasp, tmp_path
 ):
     from agents.evaluation import SB3Policy
 
-    model, normalizer = shipped_grasp
-    with_embedded_normalizer(
-        SAC.load(SHIPPED_GRASP / "best_model.zip", device="cpu"), normalizer
-    ).save(tmp_path / "best_model.zip")
-    (tmp_path / "best_vecnormalize.pkl").write_bytes(
-        (SHIPPED_GRASP / "best_vecnormalize.pkl").read_bytes()
+    folder, normalizer = normalized_grasp
+    model = SAC.load(folder / "model.zip", device="cpu")
+    with_embedded_normalizer(SAC.load(folder / "model.zip", device="cpu"), normalizer).save(
+        tmp_path / "best_model.zip"
     )
+    (tmp_path / "best_vecnormalize.pkl").write_bytes((folder / "vecnormalize.pkl").read_bytes())
     loaded = SB3Policy.load(SAC, tmp_path / "best_model.zip", tmp_path / "best_vecnormalize.pkl")
     env = gym.make("InstrumentGrasp-v1")
     observation, _ = env.reset(seed=1_000_001)

@@ -453,6 +453,17 @@ def test_a_config_without_the_env_lists_what_it_has(tmp_path, capsys):
     assert "(did you mean 'ViewPlaning-v0'?); it has: " in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    "steps, evaluation, comparison", [(300, 5, 5), (12_345, 12, 12), (80_000, 20, 50)]
+)
+def test_evaluations_not_given_their_size_scale_with_the_run(steps, evaluation, comparison):
+    """A 300-step run spent minutes on a 50-episode final comparison after its training."""
+    config = training.resolve_config(env_id="InstrumentGrasp-v1", algo="sac", n_timesteps=steps)
+    assert (config["eval_episodes"], config["final_episodes"]) == (evaluation, comparison)
+    given = training.resolve_config(n_timesteps=steps, eval_episodes=3, final_episodes=0)
+    assert (given["eval_episodes"], given["final_episodes"]) == (3, 0)
+
+
 def test_a_variant_trains_with_its_tasks_entry_and_a_deprecated_version_needs_its_own(
     tmp_path, capsys
 ):
@@ -522,9 +533,14 @@ def test_a_resumed_run_draws_no_periodic_evaluation_seed():
 
 def test_a_normalised_run_without_its_normaliser_is_refused(tmp_path):
     # load_policy (train.py's final comparison) took it on raw observations, silently.
+    from stable_baselines3 import SAC
+
     run = tmp_path / "sac"
     shutil.copytree(REPO / "policies" / "InstrumentGrasp-v1" / "sac", run)
-    (run / run_folder.BEST_NORMALIZER).unlink()
+    assert load_policy(run).normalizer is None  # its policy.zip takes raw observations
+    model = SAC.load(run / run_folder.POLICY, device="cpu")
+    delattr(model, run_folder.RAW_OBSERVATIONS)  # as a run's best model is saved
+    model.save(run / run_folder.BEST_MODEL)
     with pytest.raises(run_folder.RunFolderError, match="best_vecnormalize.pkl is missing"):
         load_policy(run)
 
@@ -579,12 +595,20 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
     assert not (shipped / run_folder.CHECKPOINTS).exists()
     assert (shipped / "git_diff_resume1.patch").read_bytes() == b"git_diff_resume1.patch"
     assert (shipped / run_folder.GIT_DIFF).is_file()  # config.yml names what it holds
+    assert not (shipped / run_folder.BEST_MODEL).exists()
     policy = load_policy(shipped)
-    assert (policy.normalizer is not None) == normalised
+    assert policy.normalizer is None  # its policy.zip takes raw observations
+    in_run = load_policy(run_dir)
+    assert (in_run.normalizer is not None) == normalised
+    plain = training.ALGO_CLASSES[algo].load(shipped / run_folder.POLICY, device="cpu")
     env = make_env(env_id, config["env_kwargs"])
     observation, _ = env.reset(seed=0)
-    action, _ = policy.predict(observation, deterministic=True)
-    assert env.action_space.contains(action)
+    for _ in range(3):
+        action, _ = in_run.predict(observation, deterministic=True)
+        for other in (policy, plain):
+            np.testing.assert_array_equal(other.predict(observation, deterministic=True)[0], action)
+        assert env.action_space.contains(action)
+        observation, *_ = env.step(action)
     env.close()
 
 
@@ -599,12 +623,13 @@ def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_pa
     temp_dir.mkdir()
     extra = ("--env-kwargs", "max_translation=0.02", "max_yaw=0.2")
     result = run_train(*args, *extra, env={"TMPDIR": str(temp_dir)})
-    assert "seeding the replay buffer with 1 privileged-grasp episodes" in result.stdout
+    assert "seeding the replay buffer with 1 privileged-grasp episode, then 20" in result.stdout
     assert sb3_temporary_folders(temp_dir) == []  # the cloning steps' logger included
     added = json.loads((run_dir / run_folder.DEMONSTRATIONS).read_text())
     assert added == {
         "expert": "privileged-grasp",
         "episodes": 1,
+        "pretrain_steps": 20,
         "transitions": 200,  # the noise-free first episode runs to the time limit
         "successes": 1,
     }

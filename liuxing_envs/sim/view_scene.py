@@ -8,6 +8,9 @@ that belongs to the episode: where the object stands and MuJoCo's state).
 
 from __future__ import annotations
 
+import itertools
+import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
@@ -24,6 +27,11 @@ from liuxing_envs.sim.objects import OBSERVABLE_CACHE_SIZE, observable_samples
 from liuxing_envs.sim.scene import WRIST_CAMERA, load_scene_spec, reset_to_home
 from liuxing_envs.sim.stand_ins import VariantScenes
 from liuxing_envs.validation import checked_reset_options, option_angle, option_in, option_xy
+
+logger = logging.getLogger(__name__)
+#: A variant whose observable samples took longer than this to prepare is reported (INFO on
+#: ``liuxing_envs``): a cold disk cache makes the first env of a process take minutes.
+SLOW_PREPARATION_SECONDS = 1.0
 
 T = TypeVar("T")
 #: Fused points must lie in this world box (above the table, around the object region).
@@ -327,17 +335,30 @@ def check_observable(meshes, scales: tuple[float, ...], coverage: CoverageSetUp)
     """Refuses a variant too large for the view space around it. Its observable samples are
     ray-cast here, up front (and cached): resets stay cheap, and worker processes forked
     from this one never reach the open3d calls that wait forever after a fork
-    (liuxing_envs.forking)."""
+    (liuxing_envs.forking). Each variant that took a while (not yet in the disk cache) is
+    logged with how many are done."""
     radii, elevations_deg = coverage.views
-    for mesh in meshes:
-        for scale in scales:
-            try:
-                observable_samples(
-                    mesh, scale, coverage.samples, radii=radii, elevations_deg=elevations_deg
-                )
-            except ValueError as error:
-                raise ValueError(
-                    f"objects: {mesh.name!r} at scale {scale}: {error}; lower scales, keep "
-                    "the views farther out (radius_range, or discrete_radius with discrete "
-                    "actions) or drop the object"
-                ) from None
+    variants = list(itertools.product(meshes, scales))
+    for done, (mesh, scale) in enumerate(variants, 1):
+        started = time.perf_counter()
+        try:
+            observable_samples(
+                mesh, scale, coverage.samples, radii=radii, elevations_deg=elevations_deg
+            )
+        except ValueError as error:
+            raise ValueError(
+                f"objects: {mesh.name!r} at scale {scale}: {error}; lower scales, keep "
+                "the views farther out (radius_range, or discrete_radius with discrete "
+                "actions) or drop the object"
+            ) from None
+        seconds = time.perf_counter() - started
+        if seconds > SLOW_PREPARATION_SECONDS:
+            logger.info(
+                "ray-cast what the views can see of %r at scale %g in %.1f s (%d of %d object "
+                "variants; kept in the disk cache, so once per machine)",
+                mesh.name,
+                scale,
+                seconds,
+                done,
+                len(variants),
+            )
