@@ -6,13 +6,16 @@
     python train.py --env-kwargs view_budget=6 --eval-freq 2000
     python train.py --resume runs/ViewPlanning-v1/ppo_seed0_20261121-101500 [-n 120000]
     python train.py --env InstrumentGrasp-v1 --algo sac \
-        --init-from policies/InstrumentGrasp-v1/sac \
+        --init-from runs/InstrumentGrasp-v1/sac_seed0_20261121-101500 --init-replay-buffer \
         --hyperparams demonstrations=null start_curriculum=null learning_rate=3e-5
+    python train.py --recipe recipes/view_planning_ppo.yml [--seed 0]  # a shipped policy
 
 Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id; a variant id uses
 its task's -v1 entry) or --config; each
 run writes a folder (see agents/run_folder.py) with its resolved config, models, checkpoints,
 evaluation history and learning curve. Ctrl-C saves a checkpoint that --resume continues.
+A recipe (agents/recipes.py) pins every setting of one or more chained runs; the same
+command again goes on where it stopped.
 """
 
 from __future__ import annotations
@@ -52,6 +55,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--n-envs", type=int, help="parallel training envs (default: from YAML)")
     run.add_argument("--vec-env", help="dummy (one process) or subproc (default: dummy)")
     run.add_argument("--config", metavar="FILE", help="hyper-parameter YAML to use instead")
+    run.add_argument(
+        "--recipe",
+        metavar="FILE",
+        help="train a recipe's stages (recipes/*.yml; every setting pinned there); with "
+        "--seed, --run-dir (the recipe's folder) or --log-folder only",
+    )
     # "extend": a flag given twice adds its items to the first's (argparse's default keeps
     # only the last group, silently dropping the rest).
     run.add_argument(
@@ -135,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
         return interrupts.exit_status()
 
     try:
+        if args.recipe:
+            return _run_recipe(parser, args)
         if args.resume:
             given = [
                 f"--{name.replace('_', '-')}"
@@ -189,6 +200,27 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return interrupts.exit_status()
+    return 0
+
+
+def _run_recipe(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    from agents import recipes
+
+    allowed = ("recipe", "seed", "run_dir", "log_folder")
+    given = [
+        f"--{name.replace('_', '-')}"
+        for name in (*RUN_DEFINING_FLAGS, "resume", "timesteps", "device", "torch_threads")
+        if name not in allowed and getattr(args, name) is not None
+    ]
+    given += ["--final-episodes"] if args.final_episodes is not None else []
+    if given:
+        parser.error(f"{', '.join(given)} cannot be given with --recipe: the recipe pins it")
+    recipe = recipes.load_recipe(args.recipe)
+    seed = recipe.seed if args.seed is None else args.seed
+    folder = args.run_dir or recipe.folder(seed, args.log_folder or recipes.DEFAULT_RECIPES_DIR)
+    print(f"recipe {recipe.name}, seed {seed}: {folder}", flush=True)
+    last = recipes.run_recipe(recipe, seed, folder, progress_bar=args.progress_bar)
+    print(f"the recipe's policy: {last / 'policy.zip'}")
     return 0
 
 

@@ -139,6 +139,7 @@ def resolve_config(
     env_id: str = DEFAULT_ENV_ID,
     algo: str = DEFAULT_ALGO,
     config_file: str | None = None,
+    hyperparams_entry: Mapping | None = None,
     hyperparams: Mapping | None = None,
     env_kwargs: Mapping | None = None,
     seed: int = DEFAULT_SEED,
@@ -155,7 +156,8 @@ def resolve_config(
     init_from: str | None = None,
     init_replay_buffer: bool = False,
 ) -> dict:
-    """Everything a run needs, checked: the hyper-parameter file's entry for ``env_id`` with
+    """Everything a run needs, checked: the hyper-parameter file's entry for ``env_id`` (or
+    ``hyperparams_entry``, a recipe's whole entry, instead of any file's) with
     ``hyperparams`` and ``env_kwargs`` merged over it and the explicit arguments on top.
     ``init_from`` names a trained run whose policy the new run starts from, and with
     ``init_replay_buffer`` its newest checkpoint's replay buffer too. ``eval_episodes`` and
@@ -165,7 +167,14 @@ def resolve_config(
     require_known("vec-env", vec_env, tuple(VEC_ENVS))
     _refuse_env_kwargs_given_twice(hyperparams or {}, env_kwargs or {})
     _refuse_counts_given_twice(hyperparams or {}, n_timesteps=n_timesteps, n_envs=n_envs)
-    merged = deep_update(default_hyperparams(algo, env_id, config_file), hyperparams or {})
+    if hyperparams_entry is not None and config_file is not None:
+        raise ConfigError("give a hyper-parameter file or a recipe's entry, not both")
+    entry = (
+        dict(hyperparams_entry)
+        if hyperparams_entry is not None
+        else default_hyperparams(algo, env_id, config_file)
+    )
+    merged = deep_update(entry, hyperparams or {})
     harness, algo_kwargs = split_hyperparams(merged, ALGO_CLASSES[algo])
     for key in ("env_kwargs", "eval_env_kwargs"):
         if not isinstance(harness.get(key) or {}, Mapping):

@@ -130,6 +130,19 @@ class Settings:
             for name, (part_name, _) in self.knobs().items()
         }
 
+    def applicable(self) -> dict[str, Any]:
+        """Every setting that applies to these settings' modes, by its public name: what
+        pins an env's task completely (giving one of the others would be refused)."""
+        knobs, values = self.knobs(), self.flat()
+        return {
+            name: value
+            for name, value in values.items()
+            if all(
+                values[mode] in allowed
+                for mode, allowed in knobs[name][1].metadata["only_with"].items()
+            )
+        }
+
     def replaced(self, **given) -> Self:
         """These settings with some replaced by their flat names, each part's values checked
         but not whether a setting applies to its mode: a version's defaults hold every mode's
