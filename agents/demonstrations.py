@@ -24,7 +24,7 @@ itself is unchanged: its actor and critic learn from uniform samples of the buff
 Configured by the ``demonstrations`` harness key of a hyper-parameter entry::
 
     demonstrations:
-      expert: privileged-grasp   # a name in EXPERTS[env_id]
+      expert: privileged-grasp   # one of the task's experts (agents.evaluation.TASKS)
       episodes: 50               # seeded: seed + DEMONSTRATION_SEED_OFFSET + i
       action_noise: 0.1          # largest std of the noise on each arm dimension
       gripper_noise: 0.005       # largest std of the noise on the gripper dimension
@@ -40,12 +40,8 @@ import torch
 from stable_baselines3.common.logger import Logger
 
 from agents.config import ConfigError, int_at_least, number_in, require_known
-from agents.evaluation import make_env
-from agents.grasp_baselines import PrivilegedGrasp
-from liuxing_envs.registration import family
+from agents.evaluation import TASKS, make_env, task_for
 
-#: Experts by task family.
-EXPERTS = {"InstrumentGrasp": {"privileged-grasp": PrivilegedGrasp}}
 DEFAULTS = {"episodes": 50, "action_noise": 0.1, "gripper_noise": 0.005, "pretrain_steps": 0}
 PRETRAIN_BATCH_SIZE = 256
 #: Demonstration episodes use their own seeds, apart from training and evaluation.
@@ -78,11 +74,12 @@ def check_demonstrations(env_id: str, algo: str, spec) -> dict | None:
         )
     if algo != "sac":
         raise ConfigError(f"demonstrations fill a replay buffer: use them with sac, not {algo}")
-    if family(env_id) not in EXPERTS:
+    experts = task_for(env_id).experts
+    if not experts:
+        with_experts = [name for name, task in TASKS.items() if task.experts]
         raise ConfigError(
-            f"no expert for {env_id}; demonstrations exist for {', '.join(EXPERTS)} tasks"
+            f"no expert for {env_id}; demonstrations exist for {', '.join(with_experts)} tasks"
         )
-    experts = EXPERTS[family(env_id)]
     for key in spec:
         require_known("demonstrations key", key, ("expert", *DEFAULTS))
     resolved = {**DEFAULTS, **spec}
@@ -163,7 +160,7 @@ def record_demonstrations(config: dict, episodes: int) -> tuple[list[Transition]
     succeeded."""
     spec = config["demonstrations"]
     env = make_env(config["env_id"], config["env_kwargs"])
-    expert = EXPERTS[family(config["env_id"])][spec["expert"]](env)
+    expert = task_for(config["env_id"]).baselines[spec["expert"]](env)
     action_size = env.action_space.shape[0]  # the gripper is the last dimension
     largest = np.array([spec["action_noise"]] * (action_size - 1) + [spec["gripper_noise"]])
     sweep = np.linspace(0.0, 1.0, episodes)[:, None] * largest

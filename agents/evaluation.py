@@ -52,6 +52,9 @@ class Task:
     extra_metrics: tuple[str, ...] = ()
     #: a privileged reference (ground truth), reported for scale, never a competitor
     reference: str | None = None
+    #: baselines good enough to seed SAC's replay buffer with their episodes
+    #: (agents/demonstrations.py)
+    experts: tuple[str, ...] = ()
 
     @property
     def make_baseline(self) -> Callable:
@@ -93,6 +96,7 @@ TASKS = {
         baselines=GRASP_BASELINES,
         baseline="scripted-grasp",
         baseline_env_kwargs=ScriptedGrasp.ENV_KWARGS,
+        experts=("privileged-grasp",),
         extra_metrics=(
             "peak_force",
             "hard_limit_exceeded",

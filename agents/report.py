@@ -23,7 +23,6 @@ from agents import run_folder
 from agents.contestants import Contestant, ContestantError, check_fits, make_checked_env, slug
 from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
 from agents.report_folder import (
-    FIGURES,
     REPORT_JSON,
     ReportFolderError,
     check_reconstruction_folders,
@@ -40,7 +39,7 @@ from agents.statistics import (
     run_bootstrap_ci,
     stratified_bootstrap_ci,
 )
-from agents.task_reports import ci_text, kind_text, report_for
+from agents.task_reports import FIGURE_FILES, ci_text, kind_text, report_for
 from agents.training import SAVED_CONFIG_DEFAULTS
 from agents.video import record_videos
 from liuxing_envs.output_folders import OutputFolderError, prepare_output_folder
@@ -72,9 +71,12 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     envs = _open_envs(contestants)  # fails on a misfit model before any episode runs
     out = Path(out)
     try:
-        prepare_output_folder(out, files=(REPORT_JSON, REPORT_MD, run_folder.GIT_DIFF, *FIGURES))
+        prepare_output_folder(
+            out, files=(REPORT_JSON, REPORT_MD, run_folder.GIT_DIFF, *FIGURE_FILES)
+        )
         check_subfolders(out)
-        earlier_files = earlier_report_files(out)  # read now: a stop leaves them all in place
+        # Read now: a stop leaves them all in place.
+        earlier_files = earlier_report_files(out, FIGURE_FILES)
         if settings.reconstruct_episodes and settings.save_episodes:
             labels = [c.label for c in contestants if report_for(c.env_id).reconstructs]
             check_reconstruction_folders(out, labels, earlier_files)

@@ -27,11 +27,6 @@ REPORT_JSON = "report.json"
 RECONSTRUCTIONS_FOLDER = "reconstructions"
 #: Where the reconstructions of a report in progress go; evaluate.py's own, cleared at start.
 STAGING_FOLDER = ".reconstructions.partial"
-COVERAGE_FIGURE = "coverage_vs_views.png"
-FORCE_TRACES_FIGURE = "force_traces.png"
-GRASP_OUTCOMES_FIGURE = "grasp_outcomes.png"
-PEAK_FORCES_FIGURE = "peak_forces.png"
-FIGURES = (COVERAGE_FIGURE, FORCE_TRACES_FIGURE, GRASP_OUTCOMES_FIGURE, PEAK_FORCES_FIGURE)
 #: The keys that make a report.json evaluate.py's: another tool's is not ours to act on.
 _REPORT_KEYS = ("environments", "seeds", "settings")
 
@@ -55,9 +50,10 @@ def check_subfolders(out: Path) -> None:
             raise ReportFolderError(f"{path} is not a folder, and the report writes one there")
 
 
-def earlier_report_files(out: Path) -> list[Path]:
+def earlier_report_files(out: Path, figure_files: Iterable[str] = ()) -> list[Path]:
     """The files and folders the report in ``out`` wrote besides its numbers (none when
-    there is no report.json of evaluate.py's there)."""
+    there is no report.json of evaluate.py's there): ``figure_files``, the figures it names
+    and each contestant's folder and video."""
     try:
         earlier = json.loads((out / REPORT_JSON).read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -65,7 +61,7 @@ def earlier_report_files(out: Path) -> list[Path]:
     if not isinstance(earlier, dict) or not all(key in earlier for key in _REPORT_KEYS):
         return []
     # Only the shapes a report writes: its pictures and videos, and per contestant a folder.
-    names = [*FIGURES]
+    names = [*figure_files]
     names += [n for n in _strings(earlier.get("figures")) if n.endswith((".png", ".mp4"))]
     try:
         for section in earlier["environments"].values():

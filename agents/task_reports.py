@@ -20,10 +20,6 @@ from agents import plotting
 from agents.contestants import slug
 from agents.recorders import COVERAGE_LEVELS, GraspRecorder, ViewPlanningRecorder
 from agents.report_folder import (
-    COVERAGE_FIGURE,
-    FORCE_TRACES_FIGURE,
-    GRASP_OUTCOMES_FIGURE,
-    PEAK_FORCES_FIGURE,
     RECONSTRUCTIONS_FOLDER,
 )
 from agents.statistics import bootstrap_ci, interval_text, wilson_interval
@@ -55,6 +51,9 @@ class TaskReport:
     tables: Callable
     #: ``(out, results, settings) -> {name: path or paths under out}``: writes the figures
     figures: Callable
+    #: the files ``figures`` writes at the report folder's top (an earlier report's are
+    #: replaced)
+    figure_files: tuple[str, ...]
     #: ``(info, seconds) -> lines``: a video frame's text read-out
     readout: Callable
     #: ``(env, fps) -> (repeat, dt)``: how many video frames show each step's picture, and the
@@ -62,6 +61,12 @@ class TaskReport:
     frame_timing: Callable
     #: whether episodes are scored by reconstruction (evaluate.py's --reconstruct-episodes)
     reconstructs: bool = False
+
+
+COVERAGE_FIGURE = "coverage_vs_views.png"
+FORCE_TRACES_FIGURE = "force_traces.png"
+GRASP_OUTCOMES_FIGURE = "grasp_outcomes.png"
+PEAK_FORCES_FIGURE = "peak_forces.png"
 
 
 # ---------------------------------------------------------------------- shared helpers
@@ -329,6 +334,7 @@ REPORTS = {
         summary=view_planning_summary,
         tables=view_planning_tables,
         figures=view_planning_figures,
+        figure_files=(COVERAGE_FIGURE,),
         readout=view_planning_readout,
         frame_timing=view_planning_frame_timing,
         reconstructs=True,
@@ -339,10 +345,15 @@ REPORTS = {
         summary=grasp_summary,
         tables=grasp_tables,
         figures=grasp_figures,
+        figure_files=(FORCE_TRACES_FIGURE, GRASP_OUTCOMES_FIGURE, PEAK_FORCES_FIGURE),
         readout=grasp_readout,
         frame_timing=grasp_frame_timing,
     ),
 }
+
+
+#: Every task's figure files.
+FIGURE_FILES = tuple(name for report in REPORTS.values() for name in report.figure_files)
 
 
 def report_for(env_id: str) -> TaskReport:

@@ -925,6 +925,7 @@ def test_a_report_stopped_during_its_episodes_leaves_the_earlier_report_whole(
 
 def test_only_an_evaluate_report_json_marks_files_as_an_earlier_reports(tmp_path):
     from agents.report_folder import earlier_report_files
+    from agents.task_reports import FIGURE_FILES
 
     (tmp_path / "report.json").write_text(json.dumps({"figures": {}, "environments": {}}))
     assert earlier_report_files(tmp_path) == []  # another tool's report.json
@@ -937,8 +938,11 @@ def test_only_an_evaluate_report_json_marks_files_as_an_earlier_reports(tmp_path
         "figures": {"peak_forces": "peak_forces.png", "videos": ["../outside.mp4"]},
     }
     (tmp_path / "report.json").write_text(json.dumps(earlier))
-    named = {p.relative_to(tmp_path).as_posix() for p in earlier_report_files(tmp_path)}
-    assert {"peak_forces.png", "reconstructions/sac", "videos/sac.mp4"} <= named
+    named = {
+        p.relative_to(tmp_path).as_posix() for p in earlier_report_files(tmp_path, FIGURE_FILES)
+    }
+    assert {"peak_forces.png", "coverage_vs_views.png", "reconstructions/sac"} <= named
+    assert "videos/sac.mp4" in named
     assert not any(".." in name for name in named)  # nothing outside the folder
 
 
