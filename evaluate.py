@@ -40,6 +40,8 @@ from agents.config import (  # noqa: E402
     show_package_progress,
 )
 
+#: The library's names for what a flag of another name sets (see NamesSettings).
+RENAMED_FLAGS = {"env_id": "--env"}
 #: The envs' splits, written out so --help needs no env import (a test keeps them in step).
 OBJECT_SPLITS = ("train", "validation", "held_out", "all", "procedural")
 INSTRUMENT_SPLITS = ("train", "held_out", "all")
@@ -185,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
             algo=args.algo,
             baselines=baselines,
             env_kwargs=parse_assignments(args.env_kwargs, "--env-kwargs"),
-            # Each task's split flag (Task.split_flag) stores its split under split_kwarg.
+            # Each task's split flag (--object-set) stores its split under its split_kwarg.
             splits={
                 name: getattr(args, task.split_kwarg)
                 for name, task in TASKS.items()
@@ -218,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         result = report.evaluate(contestants, settings, args.out)
     except (ConfigError, contest.ContestantError) as error:
-        parser.error(str(error))
+        parser.error(error.for_command_line(RENAMED_FLAGS))
     except KeyboardInterrupt:
         return 130
     print(report.summary_lines(result))

@@ -37,6 +37,8 @@ from agents.config import (  # noqa: E402
 from agents.run_folder import RunFolderError  # noqa: E402
 from agents.workers import WorkerDied  # noqa: E402
 
+#: The library's names for what a flag of another name sets (see NamesSettings).
+RENAMED_FLAGS = {"env_id": "--env", "n_timesteps": "-n/--timesteps", "config_file": "--config"}
 #: Flags that define a run; a resumed run keeps the values in its config.yml.
 RUN_DEFINING_FLAGS = (
     "env", "algo", "seed", "n_envs", "vec_env", "config", "hyperparams", "env_kwargs",
@@ -194,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"run folder: {run_dir}", flush=True)
         training.train(config, run_dir, progress_bar=args.progress_bar)
     except (ConfigError, RunFolderError) as error:
-        parser.error(str(error))
+        parser.error(error.for_command_line(RENAMED_FLAGS))
     except WorkerDied as error:  # the cause is the worker's, not this process's: no traceback
         print(f"train.py: error: {error}", file=sys.stderr)
         return 1

@@ -84,7 +84,40 @@ def safe_load(text: str):
 _NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
-class ConfigError(ValueError):
+#: How a message marks a setting it is about: «name», the keyword of the library call.
+_SETTING = re.compile(r"«([a-z][a-z0-9_]*)»")
+
+
+class NamesSettings:
+    """An error whose message marks the settings it is about as «name» (the keyword of the
+    library call or the key of a config file): ``str()`` shows those names, and
+    :meth:`for_command_line` the flags a script takes them as, so that only the scripts
+    speak of flags."""
+
+    def __str__(self) -> str:
+        return _SETTING.sub(r"\1", super().__str__())
+
+    @property
+    def marked(self) -> str:
+        """The message with its settings still marked, for a message that wraps it."""
+        return super().__str__()
+
+    def for_command_line(self, renamed: Mapping[str, str] | None = None) -> str:
+        """The message with each setting named by its flag: ``renamed``'s, else
+        ``--name-with-dashes``."""
+        renamed = renamed or {}
+        return _SETTING.sub(
+            lambda match: renamed.get(match[1], "--" + match[1].replace("_", "-")), self.marked
+        )
+
+
+def marked(error: Exception) -> str:
+    """An error's message for another message to wrap: its settings still marked where it
+    marks them (:class:`NamesSettings`)."""
+    return error.marked if isinstance(error, NamesSettings) else str(error)
+
+
+class ConfigError(NamesSettings, ValueError):
     """A configuration value the harness cannot use; the message says what is allowed."""
 
 
@@ -203,7 +236,7 @@ HYPERPARAM_RANGES = {
 #: number.
 AUTO_OR_NUMBER = ("ent_coef", "target_entropy")
 #: Algorithm kwargs that train.py sets from its own flags.
-SET_BY_FLAGS = {"seed": "--seed", "device": "--device", "tensorboard_log": "--tensorboard"}
+SET_BY_FLAGS = {"seed": "«seed»", "device": "«device»", "tensorboard_log": "«tensorboard»"}
 
 
 #: Hyper-parameters SB3 also takes as a schedule of the training progress; here written as

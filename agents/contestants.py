@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agents import run_folder
-from agents.config import check_env_kwargs, closest, require_known
+from agents.config import NamesSettings, check_env_kwargs, closest, marked, require_known
 from agents.evaluation import HELD_OUT_SPLIT, TASKS, SB3Policy, make_env, task_for
 from agents.spaces import describe_space, same_space
 from agents.training import ALGO_CLASSES
@@ -28,7 +28,7 @@ BASELINES: dict[str, Mapping[str, Callable]] = {
 PRIVILEGED_BASELINES = frozenset(task.reference for task in TASKS.values() if task.reference)
 
 
-class ContestantError(ValueError):
+class ContestantError(NamesSettings, ValueError):
     """An input evaluate.py cannot use; the message names it and what is wrong."""
 
 
@@ -122,7 +122,7 @@ def policy_contestant(
     if config is not None:
         if algo is not None and algo != config["algo"]:
             raise ContestantError(
-                f"{str(path)!r} is a {config['algo']} run's, not {algo}: drop --algo (it is "
+                f"{str(path)!r} is a {config['algo']} run's, not {algo}: drop «algo» (it is "
                 "for lone model files)"
             )
         env_id, algo = config["env_id"], config["algo"]
@@ -134,13 +134,14 @@ def policy_contestant(
     else:
         if env_id is None:
             raise ContestantError(
-                f"{str(path)!r} is not in a run folder, so its environment is unknown: pass --env"
+                f"{str(path)!r} is not in a run folder, so its environment is unknown: "
+                "pass «env_id»"
             )
         saved_by = _algo_in_zip(model_path)
         if algo is not None and algo != saved_by:
             raise ContestantError(
-                f"{str(model_path)!r} was saved by {saved_by}, not {algo}: drop --algo or "
-                f"pass --algo {saved_by}"
+                f"{str(model_path)!r} was saved by {saved_by}, not {algo}: drop «algo» or "
+                f"pass «algo» {saved_by}"
             )
         algo = saved_by
         # Without a run's config, the statistics saved beside the file (as a run folder
@@ -154,7 +155,7 @@ def policy_contestant(
                 f"has no {normalizer_path.name} "
                 "beside it, so whether it was trained on normalised observations is unknown: "
                 "evaluate its run folder, put its normaliser beside it under that name, or "
-                "pass --raw-observations if it was trained without one"
+                "pass «raw_observations» if it was trained without one"
             )
         env_kwargs, seed = {}, None
     if normalize and (normalizer_path is None or not normalizer_path.is_file()):
@@ -220,7 +221,7 @@ def _read_run_config(run_dir: Path) -> dict:
     try:
         config = run_folder.read_config(run_dir)
     except run_folder.RunFolderError as error:
-        raise ContestantError(str(error)) from error
+        raise ContestantError(marked(error)) from error
     if config["algo"] not in ALGO_CLASSES:
         raise ContestantError(
             f"{str(run_dir)!r}: unknown algo {config['algo']!r}; allowed: {', '.join(ALGO_CLASSES)}"
@@ -256,7 +257,7 @@ def _algo_in_zip(model_path: Path) -> str:
     try:
         algo = run_folder.saved_algorithm(model_path)
     except run_folder.RunFolderError as error:
-        raise ContestantError(str(error)) from error
+        raise ContestantError(marked(error)) from error
     if algo is None:
         raise ContestantError(
             f"{str(model_path)!r} holds a policy of an algorithm evaluate.py does not know; "
@@ -269,7 +270,7 @@ def _load(algo: str, model_path: Path, normalizer_path: Path | None) -> SB3Polic
     try:
         return SB3Policy.load(ALGO_CLASSES[algo], model_path, normalizer_path)
     except run_folder.RunFolderError as error:
-        raise ContestantError(str(error)) from error
+        raise ContestantError(marked(error)) from error
 
 
 def make_checked_env(contestant: Contestant, **make_kwargs):
@@ -329,16 +330,16 @@ def build_contestants(
     twice = sorted(set(named_baselines) & set(baselines or ()))
     if twice:  # it would run once, silently, where the command line asks for it twice
         raise ContestantError(
-            f"{', '.join(twice)} is given both as a contestant and in --baselines; give it once"
+            f"{', '.join(twice)} is given both as a contestant and in «baselines»; give it once"
         )
     env_ids = list(dict.fromkeys(c.env_id for c in contestants))
     uses_env = named_baselines or any(c.config is None for c in contestants)  # lone zips
     if env_id is not None and env_ids and env_id not in env_ids and not uses_env:
         # It would only add env_id's baselines to the report: surely a mistaken --env.
         raise ContestantError(
-            f"--env {env_id} is not the environment of the runs given ({', '.join(env_ids)}): "
-            "--env is for lone model files and baseline names, a run folder knows its own; "
-            "drop --env"
+            f"«env_id» {env_id} is not the environment of the runs given "
+            f"({', '.join(env_ids)}): «env_id» is for lone model files and baseline names, a "
+            "run folder knows its own; drop «env_id»"
         )
     if env_id is not None and env_id not in env_ids:
         env_ids.append(env_id)
@@ -346,33 +347,34 @@ def build_contestants(
         if named_baselines:  # a run folder's name mistyped, or a baseline's without --env
             raise ContestantError(
                 f"{', '.join(map(repr, named_baselines))}: no such run folder or model file, "
-                "and baseline names need --env ("
+                "and baseline names need «env_id» ("
                 + "; ".join(f"{task}: {', '.join(names)}" for task, names in BASELINES.items())
                 + ")"
             )
         raise ContestantError(
-            "nothing to evaluate on: give a run folder or model file, or --env with baselines"
+            "nothing to evaluate on: give a run folder or model file, or «env_id» with baselines"
         )
     if named_baselines and len(env_ids) > 1:
         raise ContestantError(
             f"baseline names ({', '.join(named_baselines)}) are ambiguous with policies of "
-            f"{', '.join(env_ids)}: evaluate one environment at a time, or use --baselines"
+            f"{', '.join(env_ids)}: evaluate one environment at a time, or use «baselines»"
         )
     if "render_mode" in env_kwargs:
         raise ContestantError(
-            "render_mode is evaluate.py's to set (rgb_array for --video), not --env-kwargs"
+            "render_mode is the report's to set (rgb_array for «video»): leave it out of "
+            "«env_kwargs»"
         )
     for current in env_ids:
         task = task_for(current)
         split = task.split_kwarg
         if split in env_kwargs:
             raise ContestantError(
-                f"the {split.replace('_', ' ')} is chosen with {task.split_flag}, "
-                f"not --env-kwargs {split}=..."
+                f"the {split.replace('_', ' ')} is chosen with «{split}», "
+                f"not «env_kwargs» {split}=..."
             )
         if task.explicit_scene_kwarg in env_kwargs and family(current) in splits:
             raise ContestantError(
-                f"{task.split_flag} and --env-kwargs {task.explicit_scene_kwarg}=... both "
+                f"«{split}» and «env_kwargs» {task.explicit_scene_kwarg}=... both "
                 f"choose {current}'s episodes; give one of them"
             )
     for contestant in contestants:
@@ -405,12 +407,12 @@ def build_contestants(
             contestants.append(baseline_contestant(name, current, scene))
     if not contestants:
         raise ContestantError(
-            f"nothing to evaluate on {', '.join(env_ids)}: --baselines none leaves no "
+            f"nothing to evaluate on {', '.join(env_ids)}: «baselines» none leaves no "
             "contestant; give a run folder, a model file or baseline names"
         )
     for split_family in splits:
         if split_family not in {family(current) for current in env_ids}:
-            flag = TASKS[split_family].split_flag
+            flag = f"«{TASKS[split_family].split_kwarg}»"
             raise ContestantError(
                 f"{flag} chooses {split_family} episodes, but nothing here runs a "
                 f"{split_family} task (evaluating {', '.join(env_ids)}); drop {flag}"
@@ -424,9 +426,9 @@ def build_contestants(
     if raw_observations and not any(_scored_raw(c) for c in contestants):
         # It would be ignored: it names no source, so it cannot be what the user meant.
         raise ContestantError(
-            "--raw-observations is for a lone model file trained without normalisation, and "
+            "«raw_observations» is for a lone model file trained without normalisation, and "
             "no source given is one (a run folder's config.yml, or a normaliser beside a zip, "
-            "says how its policy was trained): drop --raw-observations"
+            "says how its policy was trained): drop «raw_observations»"
         )
     unique_labels(contestants)
     return contestants

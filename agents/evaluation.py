@@ -65,11 +65,6 @@ class Task:
         return None if self.reference is None else self.baselines[self.reference]
 
     @property
-    def split_flag(self) -> str:
-        """evaluate.py's flag choosing the split (``--object-set``)."""
-        return "--" + self.split_kwarg.replace("_", "-")
-
-    @property
     def held_out_kwargs(self) -> dict:
         """Env kwargs selecting the held-out split."""
         return {self.split_kwarg: HELD_OUT_SPLIT}

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from agents import run_folder
+from agents.config import marked
 from agents.contestants import Contestant, ContestantError, check_fits, make_checked_env, slug
 from agents.evaluation import FINAL_EVAL_SEED, run_episodes, summarize, task_for
 from agents.report_folder import (
@@ -83,7 +84,9 @@ def evaluate(contestants: Sequence[Contestant], settings: Settings, out: Path) -
     except (OutputFolderError, ReportFolderError) as error:
         for env in envs.values():
             env.close()
-        raise ContestantError(f"cannot write the report into {str(out)!r}: {error}") from error
+        raise ContestantError(
+            f"cannot write the report into {str(out)!r}: {marked(error)}"
+        ) from error
     staging = fresh_staging_folder(out)
     source = run_folder.Source.of_checkout()  # as it starts: edits while it runs do not count
     seeds = range(settings.seed, settings.seed + settings.episodes)

@@ -20,6 +20,7 @@ import shutil
 from collections.abc import Iterable
 from pathlib import Path
 
+from agents.config import NamesSettings
 from agents.contestants import slug
 from agents.video import VIDEOS_FOLDER
 
@@ -31,7 +32,7 @@ STAGING_FOLDER = ".reconstructions.partial"
 _REPORT_KEYS = ("environments", "seeds", "settings")
 
 
-class ReportFolderError(ValueError):
+class ReportFolderError(NamesSettings, ValueError):
     """The folder cannot take a report's files; the message names the path."""
 
 
@@ -44,7 +45,7 @@ def check_subfolders(out: Path) -> None:
         if path.is_symlink():
             raise ReportFolderError(
                 f"{path} is a link: the report writes its {name} there; remove the link or "
-                "choose another --out"
+                "choose another «out»"
             )
         if path.exists() and not path.is_dir():
             raise ReportFolderError(f"{path} is not a folder, and the report writes one there")
@@ -82,7 +83,7 @@ def check_reconstruction_folders(out: Path, labels: Iterable[str], earlier: list
             raise ReportFolderError(
                 f"{folder} exists and no earlier report in the folder wrote it: the report "
                 "writes its reconstructions of that contestant there; move it or choose "
-                "another --out"
+                "another «out»"
             )
 
 

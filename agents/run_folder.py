@@ -46,6 +46,8 @@ from typing import NamedTuple
 
 import yaml
 
+from agents.config import NamesSettings
+
 CONFIG = "config.yml"
 FINAL_MODEL = "model.zip"
 FINAL_NORMALIZER = "vecnormalize.pkl"
@@ -116,7 +118,7 @@ REQUIRED_CONFIG_KEYS = (
 )  # fmt: skip
 
 
-class RunFolderError(ValueError):
+class RunFolderError(NamesSettings, ValueError):
     """A run folder that cannot be used as asked (missing, incomplete, not a run)."""
 
 

@@ -164,7 +164,7 @@ def resolve_config(
     ``final_episodes`` left None scale with the run (:func:`auto_episodes`)."""
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
-    require_known("vec-env", vec_env, tuple(VEC_ENVS))
+    require_known("«vec_env»", vec_env, tuple(VEC_ENVS))
     _refuse_env_kwargs_given_twice(hyperparams or {}, env_kwargs or {})
     _refuse_counts_given_twice(hyperparams or {}, n_timesteps=n_timesteps, n_envs=n_envs)
     if hyperparams_entry is not None and config_file is not None:
@@ -187,7 +187,7 @@ def resolve_config(
     if not isinstance(normalize, bool):
         raise ConfigError(f"normalize must be true or false, got {normalize!r}")
     n_timesteps = int_at_least(
-        "timesteps", n_timesteps if n_timesteps is not None else harness.get("n_timesteps")
+        "«n_timesteps»", n_timesteps if n_timesteps is not None else harness.get("n_timesteps")
     )
     if eval_episodes is None:
         eval_episodes = auto_episodes(n_timesteps, DEFAULT_EVAL_EPISODES)
@@ -196,10 +196,10 @@ def resolve_config(
     config = {
         "env_id": env_id,
         "algo": algo,
-        "seed": int_at_least("seed", seed, minimum=0, maximum=MAX_SEED),
+        "seed": int_at_least("«seed»", seed, minimum=0, maximum=MAX_SEED),
         "n_timesteps": n_timesteps,
         "n_envs": int_at_least(
-            "n-envs", n_envs if n_envs is not None else harness.get("n_envs", 1)
+            "«n_envs»", n_envs if n_envs is not None else harness.get("n_envs", 1)
         ),
         "vec_env": vec_env,
         "policy": require_known("policy", harness.get("policy", DEFAULT_POLICY), POLICIES),
@@ -209,16 +209,16 @@ def resolve_config(
         "env_kwargs": merged_env_kwargs,
         "eval_env_kwargs": dict(eval_env_kwargs),
         "hyperparams": algo_kwargs,
-        "eval_freq": int_at_least("eval-freq", eval_freq, minimum=0),
-        "eval_episodes": int_at_least("eval-episodes", eval_episodes),
-        "save_freq": int_at_least("save-freq", save_freq, minimum=0),
-        "final_episodes": int_at_least("final-episodes", final_episodes, minimum=0),
+        "eval_freq": int_at_least("«eval_freq»", eval_freq, minimum=0),
+        "eval_episodes": int_at_least("«eval_episodes»", eval_episodes),
+        "save_freq": int_at_least("«save_freq»", save_freq, minimum=0),
+        "final_episodes": int_at_least("«final_episodes»", final_episodes, minimum=0),
         "device": check_device(device),
         "tensorboard": bool(tensorboard),
-        "torch_threads": int_at_least("torch-threads", torch_threads),
+        "torch_threads": int_at_least("«torch_threads»", torch_threads),
     }
     if init_replay_buffer and not init_from:
-        raise ConfigError("--init-replay-buffer needs --init-from RUN_DIR to take it from")
+        raise ConfigError("«init_replay_buffer» needs «init_from» (a run folder) to take it from")
     config["init_from"] = (
         check_init_from(init_from, env_id, algo, config["normalize"], init_replay_buffer)
         if init_from
@@ -253,28 +253,28 @@ def check_init_from(
     try:
         trained = run_folder.read_config(run_dir)
     except run_folder.RunFolderError as error:
-        raise ConfigError(f"--init-from: {error}") from error
+        raise ConfigError(f"«init_from»: {error}") from error
     if (trained["env_id"], trained["algo"]) != (env_id, algo):
         raise ConfigError(
-            f"--init-from {source!r} is a {trained['algo']} run on {trained['env_id']}; "
+            f"«init_from» {source!r} is a {trained['algo']} run on {trained['env_id']}; "
             f"this run is {algo} on {env_id}"
         )
     if bool(trained.get("normalize")) != normalize:
         raise ConfigError(
-            f"--init-from {source!r} has normalize: {bool(trained.get('normalize'))} and this "
+            f"«init_from» {source!r} has normalize: {bool(trained.get('normalize'))} and this "
             f"run normalize: {normalize}; its weights expect the other inputs"
         )
     model_path, normalizer_path = run_folder.policy_files(run_dir, best=True)
     if not model_path.is_file():
-        raise ConfigError(f"--init-from {source!r} has no {model_path.name}")
+        raise ConfigError(f"«init_from» {source!r} has no {model_path.name}")
     if normalize and normalizer_path is None:
         raise ConfigError(
-            f"--init-from {source!r} keeps only {model_path.name}, whose observation statistics "
+            f"«init_from» {source!r} keeps only {model_path.name}, whose observation statistics "
             "are fixed inside it; a run that normalises observations goes on from the run "
             "folder it was exported from"
         )
     if normalize and not normalizer_path.is_file():
-        raise ConfigError(f"--init-from {source!r} has no {normalizer_path.name}")
+        raise ConfigError(f"«init_from» {source!r} has no {normalizer_path.name}")
     chosen = {
         "run": str(run_dir),
         "model": str(model_path),
@@ -288,12 +288,12 @@ def check_init_from(
 
 def _checkpoint_replay_buffer(run_dir: Path, algo: str) -> Path:
     if issubclass(ALGO_CLASSES[algo], OnPolicyAlgorithm):
-        raise ConfigError(f"--init-replay-buffer: {algo} is on-policy and keeps no replay buffer")
+        raise ConfigError(f"«init_replay_buffer»: {algo} is on-policy and keeps no replay buffer")
     steps = run_folder.latest_checkpoint(run_dir)
     path = run_folder.checkpoint_paths(run_dir, steps)["replay_buffer"] if steps else None
     if path is None or not path.is_file():
         raise ConfigError(
-            f"--init-replay-buffer: {str(run_dir)!r} has no checkpoint with a replay buffer "
+            f"«init_replay_buffer»: {str(run_dir)!r} has no checkpoint with a replay buffer "
             f"(looked for {run_folder.CHECKPOINTS}/replay_buffer_STEPS_steps.pkl)"
         )
     return path
@@ -314,20 +314,16 @@ def _refuse_env_kwargs_given_twice(hyperparams: Mapping, env_kwargs: Mapping) ->
     )
     if given_twice:
         raise ConfigError(
-            f"env kwargs {given_twice} are given both in --hyperparams env_kwargs and in "
-            "--env-kwargs; give each setting once"
+            f"env kwargs {given_twice} are given both in «hyperparams» env_kwargs and in "
+            "«env_kwargs»; give each setting once"
         )
 
 
-#: The run's counts that have a flag of their own besides --hyperparams.
-COUNT_FLAGS = {"n_timesteps": "-n/--timesteps", "n_envs": "--n-envs"}
-
-
 def _refuse_counts_given_twice(hyperparams: Mapping, **counts) -> None:
-    """ConfigError for a count given in both --hyperparams and its own flag: the flag would
-    win silently, and the other value would go unchecked."""
+    """ConfigError for a count given in both ``hyperparams`` and its own argument: the
+    argument would win silently, and the other value would go unchecked."""
     given_twice = [
-        f"{key} (--hyperparams {key}={hyperparams[key]!r} and {COUNT_FLAGS[key]} {value})"
+        f"{key} («hyperparams» {key}={hyperparams[key]!r} and «{key}» {value})"
         for key, value in counts.items()
         if value is not None and key in hyperparams
     ]
@@ -363,7 +359,7 @@ def check_device(device: str) -> str:
     if parsed is not None and parsed.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(
             f"device {device!r} asked for CUDA, but this torch build ({torch.__version__}) "
-            "has no usable GPU; use --device cpu or install a CUDA build (see README)"
+            "has no usable GPU; use «device» cpu or install a CUDA build (see README)"
         )
     return device
 
@@ -511,7 +507,7 @@ def check_run_definition(config: Mapping, model_path: Path, config_path: Path) -
         raise run_folder.RunFolderError(
             f"{str(config_path)!r} no longer holds the settings its run was trained with "
             f"(was config.yml edited?): {'; '.join(changed)}. A resumed run keeps them; "
-            "put them back, or start a new run (--init-from starts one from this run's policy)"
+            "put them back, or start a new run («init_from» starts one from this run's policy)"
         )
 
 
@@ -860,8 +856,8 @@ def train(config: dict, run_dir: Path, progress_bar: bool = False) -> dict:
 def _refuse_a_run_folder(run_dir: Path) -> None:
     if (run_dir / run_folder.CONFIG).exists():
         raise ConfigError(
-            f"{str(run_dir)!r} already holds a run; continue it with --resume {run_dir} "
-            "or choose another --run-dir"
+            f"{str(run_dir)!r} already holds a run; continue it with «resume» {run_dir} "
+            "or choose another «run_dir»"
         )
 
 
@@ -992,7 +988,7 @@ def _checked_vec_env(config: dict, run_dir: Path):
     except (EOFError, ConnectionError) as error:
         raise ConfigError(
             f"{config['env_id']} with env kwargs {config['env_kwargs']}: a worker process died "
-            "building it; --vec-env dummy shows why"
+            "building it; «vec_env» dummy shows why"
         ) from error
 
 
@@ -1044,13 +1040,13 @@ def load_trained_start(
         saved, state_dicts, variables = load_from_zip_file(path, device="cpu")
     except run_folder.UNREADABLE as error:
         raise run_folder.RunFolderError(
-            f"--init-from model {path!r} is not readable: {type(error).__name__}: {error}"
+            f"«init_from» model {path!r} is not readable: {type(error).__name__}: {error}"
         ) from error
     env = make_env(env_id, env_kwargs)
     try:
         for name, expected, trained_in in mismatched_spaces(env, saved):
             raise ConfigError(
-                f"--init-from model {path!r} has the {name} {describe_space(trained_in)}; "
+                f"«init_from» model {path!r} has the {name} {describe_space(trained_in)}; "
                 f"this run's env has {describe_space(expected)} (different env kwargs?)"
             )
     finally:
@@ -1061,8 +1057,8 @@ def load_trained_start(
     # (one env's step copied into several columns) or fail mid-run.
     if replay_buffer is not None and replay_buffer.n_envs != n_envs:
         raise ConfigError(
-            f"--init-replay-buffer: {buffer!r} was filled by {replay_buffer.n_envs} env(s); "
-            f"this run has --n-envs {n_envs}: pass --n-envs {replay_buffer.n_envs}"
+            f"«init_replay_buffer»: {buffer!r} was filled by {replay_buffer.n_envs} env(s); "
+            f"this run has «n_envs» {n_envs}: pass «n_envs» {replay_buffer.n_envs}"
         )
     return TrainedStart(
         path,
@@ -1082,7 +1078,7 @@ def load_trained_weights(model, trained: TrainedStart) -> None:
         model.set_parameters(trained.state_dicts, exact_match=True, device=model.device)
     except (RuntimeError, ValueError) as error:
         raise ConfigError(
-            f"--init-from model {trained.model_path!r} does not fit this run's networks "
+            f"«init_from» model {trained.model_path!r} does not fit this run's networks "
             f"(different policy_kwargs?): {error}"
         ) from error
     # set_parameters leaves out bare tensors such as SAC's log_ent_coef: without it a tuned
@@ -1114,11 +1110,13 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
         config, run_folder.checkpoint_paths(run_dir, steps)["model"], run_dir / run_folder.CONFIG
     )
     # The run's total changes only once it trains on: a finished run keeps its own.
-    total = config["n_timesteps"] if n_timesteps is None else int_at_least("timesteps", n_timesteps)
+    total = (
+        config["n_timesteps"] if n_timesteps is None else int_at_least("«n_timesteps»", n_timesteps)
+    )
     checks = {
         "device": check_device,
-        "final_episodes": lambda value: int_at_least("final-episodes", value, minimum=0),
-        "torch_threads": lambda value: int_at_least("torch-threads", value),
+        "final_episodes": lambda value: int_at_least("«final_episodes»", value, minimum=0),
+        "torch_threads": lambda value: int_at_least("«torch_threads»", value),
     }
     for key, value in overrides.items():
         if key not in checks:
@@ -1150,7 +1148,7 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
             return _final_comparison(run_dir, config, result)
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {total} steps; "
-            "pass a larger --timesteps to continue it"
+            "pass a larger «n_timesteps» to continue it"
         )
     config["n_timesteps"] = total
     paths = run_folder.checkpoint_paths(run_dir, steps)

@@ -514,7 +514,8 @@ def evaluate_fails(*args: str, out: Path | None = None) -> str:
         ),
         (
             ["--env", "ViewPlanning-v1", "four-view", "--env-kwargs", "render_mode=human"],
-            "render_mode is evaluate.py's to set",
+            "render_mode is the report's to set (rgb_array for --video): leave it out of "
+            "--env-kwargs",
         ),
         (["policies/ViewPlanning-v1/ppo", "--algo", "sac"], "is a ppo run's, not sac"),
         (
@@ -674,7 +675,7 @@ def test_a_lone_shipped_policy_zip_names_its_own_algorithm_and_needs_no_flag(
         policy_contestant(lone, env_id=env_id, algo=other)
     # Any other model zip alone may need statistics it does not have: refused, by name.
     old = old_style_copy(lone, {"ppo": PPO, "sac": SAC}[algo], tmp_path / "model.zip")
-    with pytest.raises(ContestantError, match="vecnormalize.pkl beside it.*--raw-observations"):
+    with pytest.raises(ContestantError, match="vecnormalize.pkl beside it.*raw_observations"):
         policy_contestant(old, env_id=env_id)
     assert policy_contestant(old, env_id=env_id, raw_observations=True).group == algo
 
@@ -713,9 +714,9 @@ def test_a_run_trained_on_its_own_scene_list_is_scored_with_the_baselines_on_the
     # A list given for this evaluation is used; the split is chosen by its own flag.
     chosen = build_contestants([str(run)], env_kwargs={"objects": ["arch"]}, baselines=[])
     assert chosen[0].env_kwargs["objects"] == ["arch"] and "object_set" not in chosen[0].env_kwargs
-    with pytest.raises(ContestantError, match="--object-set, not --env-kwargs object_set"):
+    with pytest.raises(ContestantError, match="object_set, not env_kwargs object_set"):
         build_contestants([str(run)], env_kwargs={"object_set": "train"})
-    with pytest.raises(ContestantError, match="--object-set and --env-kwargs objects=... both"):
+    with pytest.raises(ContestantError, match="object_set and env_kwargs objects=... both"):
         build_contestants(
             [str(run)], env_kwargs={"objects": ["arch"]}, splits={"ViewPlanning": "train"}
         )

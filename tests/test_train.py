@@ -278,7 +278,7 @@ def test_a_python_expression_stays_a_string():
         ),
         (["--run-dir", "runs/x", "-f", "runs"], "give --run-dir (the run's own folder) or --log"),
         (["--init-from", "no/such/run"], "--init-from: run folder 'no/such/run' does not exist"),
-        (["--init-replay-buffer"], "--init-replay-buffer needs --init-from RUN_DIR"),
+        (["--init-replay-buffer"], "--init-replay-buffer needs --init-from (a run folder)"),
         (["--device", "tpu"], "not a torch device"),
         (["--device", "meta"], "is a meta device; training runs on auto, cpu, cuda or cuda:N"),
         (["--device", "mps"], "is a mps device; training runs on"),
@@ -825,7 +825,7 @@ def test_a_trained_run_without_its_final_comparison_gets_it_from_resume(tmp_path
     assert config["resume_commands"][-1].endswith(f"--resume {run_dir} --final-episodes 2")
     # Once it has its comparison, a finished run continues only with more steps.
     result = run_train("--resume", str(run_dir), "--final-episodes", "2", check=False)
-    assert result.returncode == 2 and "pass a larger --timesteps" in result.stderr
+    assert result.returncode == 2 and "pass a larger -n/--timesteps" in result.stderr
 
 
 def test_a_failure_while_learning_saves_a_checkpoint_to_resume_from(tmp_path, monkeypatch):
@@ -1193,7 +1193,7 @@ def test_resuming_a_finished_run_needs_more_steps(tmp_path):
     run_train(*quick_args("ViewPlanning-v1", "ppo", run_dir, 64), "--final-episodes", "0")
     result = run_train("--resume", str(run_dir), check=False)
     assert result.returncode == 2
-    assert "pass a larger --timesteps" in result.stderr
+    assert "pass a larger -n/--timesteps" in result.stderr
 
 
 @pytest.fixture(scope="module")
@@ -1724,3 +1724,15 @@ def test_the_readme_runs_the_shipped_grasp_policy_in_its_own_task(monkeypatch):
         assert env.action_space.contains(namespace["action"])
     finally:
         env.close()
+
+
+def test_library_errors_name_arguments_and_only_the_scripts_name_flags():
+    """resolve_config told a library caller to "pass --init-from RUN_DIR"."""
+    with pytest.raises(ConfigError) as refused:
+        training.resolve_config(init_replay_buffer=True)
+    assert str(refused.value).startswith("init_replay_buffer needs init_from (a run folder)")
+    assert refused.value.for_command_line().startswith("--init-replay-buffer needs --init-from")
+    with pytest.raises(ConfigError) as refused:
+        training.resolve_config(n_timesteps=0)
+    assert str(refused.value).startswith("n_timesteps must be an integer >= 1")
+    assert refused.value.for_command_line(train.RENAMED_FLAGS).startswith("-n/--timesteps must")
