@@ -217,11 +217,16 @@ def _run_recipe(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
     given += ["--final-episodes"] if args.final_episodes is not None else []
     if given:
         parser.error(f"{', '.join(given)} cannot be given with --recipe: the recipe pins it")
-    recipe = recipes.load_recipe(args.recipe)
-    seed = recipe.seed if args.seed is None else args.seed
-    folder = args.run_dir or recipe.folder(seed, args.log_folder or recipes.DEFAULT_RECIPES_DIR)
-    print(f"recipe {recipe.name}, seed {seed}: {folder}", flush=True)
-    last = recipes.run_recipe(recipe, seed, folder, progress_bar=args.progress_bar)
+    try:
+        recipe = recipes.load_recipe(args.recipe)
+        seed = recipe.seed if args.seed is None else args.seed
+        parent = args.log_folder or recipes.DEFAULT_RECIPES_DIR
+        folder = args.run_dir or recipe.folder(seed, parent)
+        print(f"recipe {recipe.name}, seed {seed}: {folder}", flush=True)
+        last = recipes.run_recipe(recipe, seed, folder, progress_bar=args.progress_bar)
+    except (ConfigError, RunFolderError) as error:
+        # The settings it names are the recipe's keys, not flags (--recipe takes none).
+        parser.error(f"recipe {args.recipe}: {error}")
     print(f"the recipe's policy: {last / 'policy.zip'}")
     return 0
 

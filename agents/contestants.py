@@ -111,10 +111,17 @@ def policy_contestant(
     if path.is_dir():
         config = _read_run_config(path)
         model_path, normalizer_path = run_folder.policy_files(path, best)
+        if not model_path.is_file() and (path / run_folder.POLICY).is_file():
+            raise ContestantError(
+                f"{str(path)!r} keeps only its exported {run_folder.POLICY} (its best policy), "
+                "no final model"
+            )
         if not model_path.is_file():
             raise ContestantError(
                 f"run folder {str(path)!r} has no {model_path.name}: has it finished?"
             )
+        if normalizer_path is None:
+            _algo_in_zip(model_path)  # a damaged one is named as such, not as unnormalised
     else:
         run_dir = _run_folder_of(path)
         config = _read_run_config(run_dir) if run_dir is not None else None

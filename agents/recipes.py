@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import json
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -181,13 +180,12 @@ def unpinned(stage: Mapping) -> list[str]:
 
 def pinned_env_kwargs(env_id: str, env_kwargs: Mapping) -> dict:
     """Every setting that applies to the task ``env_kwargs`` makes of ``env_id``, by name."""
-    from agents.evaluation import make_env
+    from liuxing_envs.registration import settings_of
 
-    env = make_env(env_id, env_kwargs)
     try:
-        settings = env.unwrapped.settings.applicable()
-    finally:
-        env.close()
+        settings = settings_of(env_id, **env_kwargs).applicable()
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{env_id} with env kwargs {dict(env_kwargs)}: {error}") from error
     return {name: _plain(value) for name, value in settings.items()}
 
 
@@ -233,58 +231,71 @@ def _plain(value):
     return value
 
 
-def stage_finished(run_dir: Path, config: Mapping) -> bool:
-    """Trained, exported, and compared if its config asks for a comparison."""
-    if not (run_dir / run_folder.POLICY).is_file():
-        return False
-    if not config.get("final_episodes"):
-        return True
-    try:
-        return "comparison" in json.loads((run_dir / run_folder.RESULT).read_text())
-    except (OSError, ValueError):
-        return False
-
-
-def _trained(run_dir: Path, config: Mapping) -> bool:
-    try:
-        result = json.loads((run_dir / run_folder.RESULT).read_text())
-        return int(result["timesteps"]) >= int(config["n_timesteps"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return False
-
-
 def run_recipe(
     recipe: Recipe, seed: int | None = None, folder: Path | None = None, progress_bar=False
 ) -> Path:
     """Trains the recipe's stages in order under ``folder`` (default: its seed's folder under
-    runs/recipes/); a stage already finished there is kept, one stopped is resumed. Returns
-    the last stage's run folder, whose ``policy.zip`` is the recipe's policy."""
+    runs/recipes/); a stage already finished there is kept, one stopped is resumed (each
+    checked to be the recipe's stage with this seed). Returns the last stage's run folder,
+    whose ``policy.zip`` is the recipe's policy."""
     from agents import training
 
     seed = recipe.seed if seed is None else seed
     folder = Path(folder) if folder is not None else recipe.folder(seed)
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "recipe.yml").write_bytes(recipe.path.read_bytes())
+    _record_recipe(recipe, folder)
     run_dirs: dict[str, Path] = {}
     for index, stage in enumerate(recipe.stages):
         run_dir = recipe.stage_dir(folder, index)
+        source = stage.get("init_from")
+        init_from = run_dirs[source] if source else None
         run_dirs[stage["name"]] = run_dir
         heading = f"stage {index + 1} of {len(recipe.stages)} ({stage['name']}): {run_dir}"
         if (run_dir / run_folder.CONFIG).is_file():
-            config = run_folder.read_config(run_dir)
-            if _trained(run_dir, config) and not (run_dir / run_folder.POLICY).is_file():
-                training.export_policy(run_dir, config["algo"])  # stopped just before it
-            if stage_finished(run_dir, config):
+            _check_same_stage(run_dir, stage, seed, init_from)
+            left = training.work_left(run_dir)
+            if not left:
                 print(f"{heading} finished before; kept", flush=True)
                 continue
-            print(f"{heading} resumed", flush=True)
+            print(f"{heading} resumed ({', '.join(left)} left)", flush=True)
             training.resume(run_dir, progress_bar=progress_bar)
             continue
         print(heading, flush=True)
-        source = stage.get("init_from")
-        config = resolve_stage(stage, seed, run_dirs[source] if source else None)
+        config = resolve_stage(stage, seed, init_from)
         training.train(config, run_dir, progress_bar=progress_bar)
     return run_dirs[recipe.stages[-1]["name"]]
+
+
+RECORD = "recipe.yml"
+
+
+def _record_recipe(recipe: Recipe, folder: Path) -> None:
+    """Keep the recipe beside its runs; a folder started from another recipe is refused."""
+    folder.mkdir(parents=True, exist_ok=True)
+    record = folder / RECORD
+    if record.is_file():
+        if load_yaml(record) != load_yaml(recipe.path):
+            raise ConfigError(
+                f"{str(folder)!r} holds the runs of another recipe ({RECORD} there differs "
+                f"from {str(recipe.path)!r}): give another folder"
+            )
+        return
+    run_folder.write_text_atomically(record, recipe.path.read_text())
+
+
+def _check_same_stage(run_dir: Path, stage: Mapping, seed: int, init_from: Path | None) -> None:
+    """Refuse a stage's existing run folder trained with other settings or another seed."""
+    from agents import training
+
+    saved = training.run_definition(run_folder.read_config(run_dir))
+    expected = training.run_definition(resolve_stage(stage, seed, init_from))
+    saved_steps = run_folder.read_config(run_dir)["n_timesteps"]
+    differ = [key for key in expected if key != "init_from" and saved[key] != expected[key]]
+    differ += ["n_timesteps"] if saved_steps != stage["n_timesteps"] else []
+    if differ:
+        raise ConfigError(
+            f"{str(run_dir)!r} was trained with another {', '.join(differ)} than stage "
+            f"{stage['name']!r} of the recipe with seed {seed}: give another folder"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -49,6 +49,7 @@ from agents.config import (
     default_hyperparams,
     int_at_least,
     linear_schedule_start,
+    marked,
     require_known,
     split_hyperparams,
 )
@@ -253,7 +254,7 @@ def check_init_from(
     try:
         trained = run_folder.read_config(run_dir)
     except run_folder.RunFolderError as error:
-        raise ConfigError(f"«init_from»: {error}") from error
+        raise ConfigError(f"«init_from»: {marked(error)}") from error
     if (trained["env_id"], trained["algo"]) != (env_id, algo):
         raise ConfigError(
             f"«init_from» {source!r} is a {trained['algo']} run on {trained['env_id']}; "
@@ -1143,9 +1144,17 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
             )
             if LAST_EVALUATION in left:
                 _make_up_last_evaluation(run_dir, config, steps, result)
+        unexported = trained and not (run_dir / run_folder.POLICY).is_file()
+        if unexported and not left:
+            print(f"{str(run_dir)!r} finished training; writing its {run_folder.POLICY}")
+        if unexported or LAST_EVALUATION in left:
+            export_policy(run_dir, config)  # its best model may have changed, or it had none
+        if left:
             if FINAL_COMPARISON not in left:
                 return result
             return _final_comparison(run_dir, config, result)
+        if unexported:
+            return result
         raise ConfigError(
             f"{str(run_dir)!r} already reached {steps} of its {total} steps; "
             "pass a larger «n_timesteps» to continue it"
@@ -1362,6 +1371,21 @@ def learn_in_run_folder(
 LAST_EVALUATION, FINAL_COMPARISON = "its last evaluation", "its final comparison"
 
 
+def work_left(run_dir: Path) -> list[str]:
+    """What ``resume`` would still do for the run in ``run_dir``: train on, make up its last
+    evaluation, run its final comparison, write its ``policy.zip``; empty when the run is
+    finished."""
+    run_dir = Path(run_dir)
+    config = {**SAVED_CONFIG_DEFAULTS, **run_folder.read_config(run_dir)}
+    steps = run_folder.latest_checkpoint(run_dir) or 0
+    if steps < config["n_timesteps"] or not (run_dir / run_folder.FINAL_MODEL).is_file():
+        return ["training"]
+    left = _left_after_training(run_dir, config, steps, _read_result(run_dir, steps))
+    if not (run_dir / run_folder.POLICY).is_file():
+        left.append(f"writing its {run_folder.POLICY}")
+    return left
+
+
 def _left_after_training(run_dir: Path, config: dict, steps: int, result: dict) -> list[str]:
     """What a run trained for ``steps`` steps has still to do: an evaluation a stop after
     its last step left out, and a final comparison its config asks for."""
@@ -1383,7 +1407,7 @@ def _save_trained(model, config: dict, run_dir: Path, level, clock: TrainingCloc
         run_folder.save_atomically(normalizer.save, run_dir / run_folder.FINAL_NORMALIZER)
     run_folder.save_atomically(model.save, run_dir / run_folder.FINAL_MODEL)
     save_checkpoint(model, run_dir, level)  # so a larger --timesteps can continue a finished run
-    export_policy(run_dir, config["algo"])
+    export_policy(run_dir, config)
     plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
     result = {"timesteps": int(model.num_timesteps), "train_seconds": seconds}
     if level is not None:
@@ -1401,7 +1425,7 @@ def _final_comparison(run_dir: Path, config: dict, result: dict) -> dict:
     others = " and ".join(name for name in (task.baseline, task.reference) if name)
     print(
         f"final comparison: {config['final_episodes']} held-out episodes each for the trained "
-        f"policy and {others} (--final-episodes sets how many) ...",
+        f"policy and {others} (train.py's --final-episodes sets how many) ...",
         flush=True,
     )
     try:
@@ -1473,7 +1497,7 @@ def load_policy(run_dir: Path, config: dict | None = None, best: bool = True) ->
     return SB3Policy.load(ALGO_CLASSES[config["algo"]], model_path, normalizer_path)
 
 
-def export_policy(run_dir: Path, algo: str) -> Path:
+def export_policy(run_dir: Path, config: Mapping) -> Path:
     """Write the run's ``policy.zip``: its best model (else its final one) with the
     observation statistics it was trained on moved inside it
     (:func:`~liuxing_envs.policy_parts.with_embedded_normalizer`), so that plain
@@ -1481,8 +1505,13 @@ def export_policy(run_dir: Path, algo: str) -> Path:
     does, wherever the package is installed."""
     run_dir = Path(run_dir)
     model_path, normalizer_path = run_folder.policy_files(run_dir, best=True)
-    model = run_folder.load_model(ALGO_CLASSES[algo], model_path, device="cpu")
-    if normalizer_path is not None and normalizer_path.is_file():
+    model = run_folder.load_model(ALGO_CLASSES[config["algo"]], model_path, device="cpu")
+    if config.get("normalize"):
+        if normalizer_path is None or not normalizer_path.is_file():
+            raise run_folder.RunFolderError(
+                f"{str(run_dir)!r} trained with observation normalisation, but the statistics "
+                f"of its {model_path.name} are missing: its policy cannot be exported"
+            )
         model = with_embedded_normalizer(model, run_folder.load_normalizer(normalizer_path))
     setattr(model, run_folder.RAW_OBSERVATIONS, True)
     path = run_dir / run_folder.POLICY

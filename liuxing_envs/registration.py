@@ -170,6 +170,19 @@ def family(env_id: str) -> str:
     return BY_ID[env_id].family
 
 
+def settings_of(env_id: str, **kwargs: Any):
+    """The settings ``gym.make(env_id, **kwargs)`` makes its env with, each value checked,
+    without making the env (no scene is built, no object set prepared)."""
+    from gymnasium.envs.registration import load_env_creator
+
+    family(env_id)  # an unknown id is refused by name
+    registration = BY_ID[env_id]
+    env_class = load_env_creator(registration.entry_point)
+    if kwargs and registration.kwargs:
+        VariantMaker(registration).refuse_redefinition(kwargs)
+    return env_class.settings_from({**registration.kwargs, **kwargs})
+
+
 def benchmark_id(family_name: str) -> str:
     """The family's current benchmark task (``"ViewPlanning"`` -> ``"ViewPlanning-v1"``)."""
     return f"{family_name}-v1"

@@ -598,12 +598,20 @@ def test_a_report_folder_that_cannot_take_files_fails_cleanly():
     assert "cannot write the report into '/proc/self': cannot write into the folder" in stderr
 
 
-def test_a_corrupt_model_zip_fails_cleanly(tmp_path):
-    run = tmp_path / "ppo_run"
-    shutil.copytree(SHIPPED_VIEW_POLICY, run)
+@pytest.mark.parametrize("shipped", ["ViewPlanning-v1/ppo", "InstrumentGrasp-v1/sac"])
+def test_a_corrupt_model_zip_fails_cleanly(tmp_path, shipped):
+    run = tmp_path / "run"
+    shutil.copytree(REPO / "policies" / shipped, run)
     model = run / run_folder.POLICY
     model.write_bytes(model.read_bytes()[:1000])
-    assert "is not a readable PPO model zip" in evaluate_fails(str(run))
+    stderr = evaluate_fails(str(run))
+    # Named as damaged, not as a normalised run's policy without its statistics.
+    assert "is not a stable-baselines3 model zip" in stderr and "statistics" not in stderr
+
+
+def test_a_shipped_folder_has_no_final_model_to_evaluate():
+    stderr = evaluate_fails(str(SHIPPED_VIEW_POLICY), "--final-model")
+    assert "keeps only its exported policy.zip" in stderr
 
 
 def test_a_folder_that_is_not_a_run_fails_cleanly(tmp_path):

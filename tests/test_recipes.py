@@ -11,13 +11,15 @@ import yaml
 import train
 from agents import recipes, run_folder
 from agents.config import ConfigError
-from agents.evaluation import make_env
+from liuxing_envs.registration import settings_of
 from tests.scripts import REPO, run_script
 
 RECIPES = sorted((REPO / "recipes").glob("*.yml"))
 
 
 def test_each_shipped_policy_has_a_recipe_with_its_seed_and_task():
+    from agents import training
+
     shipped = {}
     for path in RECIPES:
         recipe = recipes.load_recipe(path)  # every stage checked and pinned
@@ -27,6 +29,16 @@ def test_each_shipped_policy_has_a_recipe_with_its_seed_and_task():
         config = run_folder.read_config(config_path.parent)
         recipe = shipped[(config["env_id"], config["algo"])]
         assert recipe.seed == config["seed"], recipe.name
+        last = recipe.stages[-1]
+        trained = settings_of(config["env_id"], **config["env_kwargs"])
+        assert settings_of(last["env_id"], **last["env_kwargs"]) == trained
+        if len(recipe.stages) == 1:  # trained by one run: the recipe is its configuration
+            resolved = training.run_definition(recipes.resolve_stage(last, recipe.seed, None))
+            defined = training.run_definition(config)
+            # It writes out the algorithm's defaults, which the run's config leaves out.
+            assert resolved.pop("hyperparams").items() >= defined.pop("hyperparams").items()
+            differ = [k for k in resolved if k != "env_kwargs" and resolved[k] != defined[k]]
+            assert differ == [], recipe.name
 
 
 def _edited(tmp_path: Path, edit) -> Path:
@@ -70,8 +82,8 @@ def test_pin_writes_every_setting_of_a_runs_configuration():
     for key in ("env_id", "algo", "n_timesteps", "n_envs", "eval_freq", "final_episodes"):
         assert resolved[key] == config[key], key
     assert resolved["hyperparams"].items() >= config["hyperparams"].items()
-    pinned, trained = (make_env(config["env_id"], kw) for kw in (resolved["env_kwargs"], {}))
-    assert pinned.unwrapped.settings == trained.unwrapped.settings.changed(**config["env_kwargs"])
+    pinned = settings_of(config["env_id"], **resolved["env_kwargs"])
+    assert pinned == settings_of(config["env_id"], **config["env_kwargs"])
 
 
 def test_a_recipe_takes_no_flag_it_pins(capsys):
@@ -110,4 +122,15 @@ def test_a_chained_recipe_runs_with_one_command_and_the_same_command_keeps_what_
     again = run_script("train.py", *args, "--no-progress-bar").stdout
     assert again.count("finished before; kept") == 2
     assert (fine / run_folder.POLICY).read_bytes() == policy
-    assert (folder / "recipe.yml").read_text() == recipe_file.read_text()
+    # A stage stopped after its training (here: before it wrote its policy) is resumed.
+    (fine / run_folder.POLICY).unlink()
+    resumed = run_script("train.py", *args, "--no-progress-bar").stdout
+    assert "(fine_tune): " in resumed and "resumed (writing its policy.zip left)" in resumed
+    assert run_folder.takes_raw_observations(fine / run_folder.POLICY)
+    # The folder holds seed 5's runs: another seed, or another recipe, is refused.
+    other_seed = run_script("train.py", *args[:3], "6", *args[4:], "--no-progress-bar", check=False)
+    assert other_seed.returncode == 2
+    assert "was trained with another seed than stage 'scratch'" in other_seed.stderr
+    recipe_file.write_text(recipe_file.read_text().replace("n_timesteps: 64", "n_timesteps: 65"))
+    other_recipe = run_script("train.py", *args, "--no-progress-bar", check=False)
+    assert "holds the runs of another recipe" in other_recipe.stderr

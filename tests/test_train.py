@@ -543,6 +543,9 @@ def test_a_normalised_run_without_its_normaliser_is_refused(tmp_path):
     model.save(run / run_folder.BEST_MODEL)
     with pytest.raises(run_folder.RunFolderError, match="best_vecnormalize.pkl is missing"):
         load_policy(run)
+    # Nor is it exported as a policy that takes raw observations.
+    with pytest.raises(run_folder.RunFolderError, match="statistics of its best_model.zip are"):
+        training.export_policy(run, run_folder.read_config(run))
 
 
 # --- end to end ------------------------------------------------------------------------------
