@@ -286,11 +286,11 @@ def _check_same_stage(run_dir: Path, stage: Mapping, seed: int, init_from: Path 
     """Refuse a stage's existing run folder trained with other settings or another seed."""
     from agents import training
 
-    saved = training.run_definition(run_folder.read_config(run_dir))
+    config = run_folder.read_config(run_dir)
+    saved = training.run_definition(config)
     expected = training.run_definition(resolve_stage(stage, seed, init_from))
-    saved_steps = run_folder.read_config(run_dir)["n_timesteps"]
     differ = [key for key in expected if key != "init_from" and saved[key] != expected[key]]
-    differ += ["n_timesteps"] if saved_steps != stage["n_timesteps"] else []
+    differ += ["n_timesteps"] if config["n_timesteps"] != stage["n_timesteps"] else []
     if differ:
         raise ConfigError(
             f"{str(run_dir)!r} was trained with another {', '.join(differ)} than stage "
