@@ -1,6 +1,7 @@
 # Two commands do all set-up on a fresh machine (see README):
 #   make run    create .venv, install the package, run the main job (python train.py)
 #   make test   create .venv, install the package and test tools, run the whole test suite
+#               (which builds the docs site and runs the docs' examples)
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
@@ -8,7 +9,7 @@ BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run demo report bench test install clean
+.PHONY: run demo report bench test docs docs-long install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -21,7 +22,7 @@ TORCH_SPEC ?= torch==2.13.0
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet $(TORCH_SPEC)
-	$(BIN)/python -m pip install --quiet -e ".[dev,train]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,train,docs]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -51,5 +52,14 @@ TEST_WORKERS ?= auto
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
 
+# The docs site on http://127.0.0.1:8000 (python -m docgen first makes its generated pages).
+docs: $(VENV)/.installed
+	$(BIN)/python -m docgen
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs serve
+
+# Every example of the README and the docs, the long ones too (trainings, reports, benchmarks).
+docs-long: $(VENV)/.installed
+	LIUXING_RUN_LONG_EXAMPLES=1 $(BIN)/python -m pytest tests/test_docs.py -k every_example
+
 clean:
-	rm -rf $(VENV) outputs .pytest_cache
+	rm -rf $(VENV) outputs site .pytest_cache

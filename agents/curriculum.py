@@ -4,7 +4,7 @@ Every episode of InstrumentGrasp begins with the tool 30 cm above the tray. A le
 finds the handle from there (the reach term leads it), but the grasp itself is millimetre
 work: lower the open jaws across a 10 mm handle to within millimetres of the tray without
 striking the instrument, close, lift. Without help PPO and SAC learned to hover 25-34 mm above
-the handle and never grasped (docs/training_notes.md): the rewards of a grasp lie beyond a
+the handle and never grasped (docs/design/training.md): the rewards of a grasp lie beyond a
 descent that they had no reason to try.
 
 This wrapper starts a fraction of the *training* episodes with the tool at the handle

@@ -3,7 +3,7 @@
 InstrumentGrasp's reward is dense only up to the handle: a grasp pays nothing until both
 pads press on it, and a random policy of 5 continuous dimensions essentially never turns the
 jaws across a 10 mm handle, lowers them to within millimetres of the tray and closes them
-below 5 N. Without demonstrations SAC learned to hover at the handle (docs/training_notes.md).
+below 5 N. Without demonstrations SAC learned to hover at the handle (docs/design/training.md).
 
 Before the first update a new run's replay buffer is filled with episodes of a scripted
 expert, with Gaussian noise on its actions so that the buffer also holds near-misses and what

@@ -360,7 +360,8 @@ def check_device(device: str) -> str:
     if parsed is not None and parsed.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(
             f"device {device!r} asked for CUDA, but this torch build ({torch.__version__}) "
-            "has no usable GPU; use «device» cpu or install a CUDA build (see README)"
+            "has no usable GPU; use «device» cpu or install a CUDA build "
+            "(docs/guides/rendering.md)"
         )
     return device
 

@@ -1709,16 +1709,16 @@ def test_the_shipped_grasp_policy_grasps_from_the_ready_pose():
     assert successes >= 16
 
 
-def test_the_readme_runs_the_shipped_grasp_policy_in_its_own_task(monkeypatch):
-    """The README's snippet for using a shipped policy in one's own code: it must make the
-    env the policy was tuned in (servo damping 0.7, the guarded approach), which
+def test_the_guide_runs_the_shipped_grasp_policy_in_its_own_task(monkeypatch):
+    """The evaluation guide's snippet for using a shipped policy in one's own code: it must
+    make the env the policy was tuned in (servo damping 0.7, the guarded approach), which
     InstrumentGrasp-v1's defaults are."""
-    readme = (REPO / "README.md").read_text(encoding="utf-8")
-    section = readme.split("### A shipped policy in your own code", 1)[1]
+    guide = (REPO / "docs" / "guides" / "evaluation.md").read_text(encoding="utf-8")
+    section = guide.split("## A shipped policy in your own code", 1)[1]
     snippet = section.split("```python\n", 1)[1].split("```", 1)[0]
     monkeypatch.chdir(REPO)
     namespace: dict = {}
-    exec(compile(snippet, "README.md", "exec"), namespace)  # noqa: S102 (our own docs)
+    exec(compile(snippet, "evaluation.md", "exec"), namespace)  # noqa: S102 (our own docs)
     env = namespace["env"]
     try:
         assert env.spec.id == "InstrumentGrasp-v1"
