@@ -1,4 +1,4 @@
-"""Train PPO or SAC on a liuxing_envs environment.
+r"""Train PPO or SAC on a liuxing_envs environment.
 
     python train.py                                   # ViewPlanning-v1, PPO, ~15 min on 2 cores
     python train.py --env InstrumentGrasp-v1 --algo sac --seed 1 -n 300000

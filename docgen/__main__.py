@@ -27,9 +27,10 @@ def readme_with_results(readme: str, tables: str) -> str:
 def generated_files() -> dict[Path, str]:
     """Every generated file's path and the text it should hold now."""
     report, speeds = results.load(results.REPORT), results.load(results.BENCHMARKS)
+    recipes = results.load(results.RECIPES) if results.RECIPES.exists() else None
     files = {
-        README: readme_with_results(README.read_text(), results.policy_tables(report, "####")),
-        ROOT / "docs" / "results.md": results.results_page(report, speeds),
+        README: readme_with_results(README.read_text(), results.policy_tables(report, "###")),
+        ROOT / "docs" / "results.md": results.results_page(report, speeds, recipes),
     }
     for family, (page, _) in task_pages.PAGES.items():
         files[ROOT / "docs" / "tasks" / page] = task_pages.task_page(family)

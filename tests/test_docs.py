@@ -53,8 +53,8 @@ def test_the_readme_table_follows_the_report():
     contestant = changed["environments"]["ViewPlanning-v1"]["contestants"][0]
     contestant["summary"]["mean"] = 0.1234
     readme = (ROOT / "README.md").read_text()
-    assert results.policy_tables(report, "####") in readme
-    regenerated = docgen_main.readme_with_results(readme, results.policy_tables(changed, "####"))
+    assert results.policy_tables(report, "###") in readme
+    regenerated = docgen_main.readme_with_results(readme, results.policy_tables(changed, "###"))
     assert "0.123 [" in regenerated and regenerated != readme
 
 

@@ -60,8 +60,9 @@ class InstrumentGraspEnv(LiuxingEnv):
     (``liuxing_envs.tasks.instrument_grasp_task``), the world (``sim/grasp_world.py``).
 
     ## Action space
-    ``Box(-1, 1)``, float32; out-of-range values are clipped, NaN/inf
-    raise ``ValueError``.
+    ``Box(-1, 1, (5,))`` with ``controller="ee_delta"``, ``(7,)`` with ``"joint_delta"``
+    (which needs the approach guard off, as ``InstrumentGraspUnguarded-v1`` has it); float32.
+    Out-of-range values are clipped, NaN/inf raise ``ValueError``.
 
     ===  =================  ===================================================================
     idx  ``controller``     meaning

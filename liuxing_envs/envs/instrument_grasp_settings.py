@@ -58,7 +58,7 @@ class ArmControl(Part):
     controller: str = knob(
         "ee_delta",
         "'ee_delta': the action moves the tool centre (x, y, z) and its yaw; 'joint_delta': "
-        "it moves the six arm joints' set-points.",
+        "it moves the six arm joints' set-points (with the approach guard off).",
     )
     max_translation: float = knob(
         0.01, "Tool-centre move per step at a full action (+-1), per axis.", unit="m",
