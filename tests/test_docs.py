@@ -160,3 +160,28 @@ def test_every_example_runs(block, tmp_path):
         f"{block.name} failed:\n{block.code}\n--- stdout\n{finished.stdout[-3000:]}"
         f"\n--- stderr\n{finished.stderr[-3000:]}"
     )
+
+
+def test_a_recipe_table_shows_every_seed_and_the_spread_over_seeds():
+    report = results.load(results.REPORT)
+    section = copy.deepcopy(report["environments"]["ViewPlanning-v1"])
+    runs = [entry for entry in section["contestants"] if entry["kind"] == "policy"][:1] * 3
+    section["contestants"] = [
+        {**copy.deepcopy(run), "training_seed": seed, "group": "ppo"}
+        for seed, run in zip((4, 0, 1), runs, strict=True)
+    ]
+    section["aggregates"] = [
+        {
+            "group": "ppo",
+            "runs": ["a", "b", "c"],
+            **{f"{key}": 0.5 for key in ("iqm", "mean")},
+            **{f"{key}_ci95": [0.25, 0.75] for key in ("iqm", "mean", "iqm_seed", "mean_seed")},
+            "probability_of_improvement": {"over": "four-view", "value": 0.625},
+        }
+    ]
+    recipes = {**report, "environments": {"ViewPlanning-v1": section}}
+    text = results.recipe_tables(recipes)
+    for seed in (4, 0, 1):
+        assert f"PPO (trained, seed {seed})" in text
+    assert "| PPO | 3 | 0.500 [0.250, 0.750] [0.250, 0.750] |" in text
+    assert "0.62 (four-view)" in text
