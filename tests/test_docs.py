@@ -185,3 +185,13 @@ def test_a_recipe_table_shows_every_seed_and_the_spread_over_seeds():
         assert f"PPO (trained, seed {seed})" in text
     assert "| PPO | 3 | 0.500 [0.250, 0.750] [0.250, 0.750] |" in text
     assert "0.62 (four-view)" in text
+
+
+@pytest.mark.slow
+def test_the_task_pictures_are_rendered_scenes():
+    from docgen import pictures
+
+    for frame in (pictures.view_planning_picture(), pictures.instrument_grasp_picture(steps=5)):
+        assert frame.dtype == "uint8" and frame.ndim == 3 and frame.shape[2] == 3
+        # A rendered scene, not a blank or one-colour frame.
+        assert frame.std() > 20 and len(set(map(tuple, frame.reshape(-1, 3)[::97]))) > 50
