@@ -67,14 +67,11 @@ class ViewScene:
     ) -> None:
         self.stage = ObjectStage(meshes, scales)
         self.coverage_set_up = coverage
-        # One tracker per variant, in the object's frame, reset per episode: its lookup grid
-        # costs milliseconds to build, a reset microseconds. All are made here, next to the
-        # ground truth they index (~3 ms each, once per process: envs share the grids), so
-        # no reset pays for one.
+        # One tracker and one pair of stand-ins per variant, made at the variant's first
+        # episode (tens of ms, once per process: envs share the grids and models), not here:
+        # making them all up front took most of a first gym.make, and object sets grow.
         self._trackers: dict[tuple[str, float], CoverageTracker] = {}
-        for mesh in meshes:
-            for scale in scales:
-                self.tracker(mesh.name, scale)
+        self._variant_scenes: dict[tuple[str, float], VariantScenes] = {}
         spec = load_scene_spec()
         self.stage.add_to_spec(spec)
         self.model = spec.compile()
@@ -84,11 +81,6 @@ class ViewScene:
         self.arm = Arm(self.model, self.data)
         self._camera: DepthCamera | None = None
         self._camera_settings = (intrinsics, depth_backend, depth_noise)
-        # Stand-ins of the scene with one variant each (see VariantScenes): ~3 ms apiece.
-        self._variant_scenes = {
-            key: VariantScenes(self.model, self.stage.meshes[key[0]], key[1])
-            for key in self._trackers
-        }
         self.placed: PlacedObject | None = None
         self._saved: mujoco.MjData | None = None  # look_from's copy of the data
 
@@ -114,14 +106,15 @@ class ViewScene:
         reset_to_home(self.model, self.data)
         self.placed = self.stage.place(name, scale, [*np.asarray(position_xy, float)[:2], 0.0], yaw)
         mujoco.mj_forward(self.model, self.data)
-        self.arm.use_collision_scene(
-            *self._variant_scenes[(name, scale)].collision_scene(self.placed)
-        )
+        self.arm.use_collision_scene(*self.stand_ins(name, scale).collision_scene(self.placed))
         return self.placed
 
     def stand_ins(self, name: str, scale: float) -> VariantScenes:
         """The stand-in scenes of one variant (shared models, this scene's data)."""
-        return self._variant_scenes[(name, scale)]
+        key = (name, scale)
+        if key not in self._variant_scenes:
+            self._variant_scenes[key] = VariantScenes(self.model, self.stage.meshes[name], scale)
+        return self._variant_scenes[key]
 
     @property
     def camera(self) -> DepthCamera:
@@ -138,7 +131,7 @@ class ViewScene:
         camera = self.camera
         if camera.backend not in RAY_CAST_BACKENDS:
             return camera.render(self.data, rng=rng)
-        scenes = self._variant_scenes[(self.placed.name, self.placed.scale)]
+        scenes = self.stand_ins(self.placed.name, self.placed.scale)
         scene = scenes.ray_scene(self.data, self.placed, camera)
         return camera.render(self.data, rng=rng, scene=scene)
 
@@ -173,7 +166,7 @@ class ViewScene:
             return
         placed = episode.placed
         self.placed = self.stage.place(placed.name, placed.scale, placed.position, placed.yaw)
-        scenes = self._variant_scenes[(placed.name, placed.scale)]
+        scenes = self.stand_ins(placed.name, placed.scale)
         self.arm.use_collision_scene(*scenes.collision_scene(self.placed))
         episode.restore(self.model, self.data)
 

@@ -1,0 +1,74 @@
+"""Compiled kernels (numba) for the hot paths of a view step.
+
+Each kernel lives in its own module of this package together with the helpers it calls:
+numba invalidates a function's on-disk cache only when the file that defines it changes, and
+it freezes module globals into the compiled code, so every tunable is passed as an argument.
+Every kernel has a reference in numpy or MuJoCo that it is tested against (equal results, or
+a stated bound), and the package works without numba: :func:`available` is then False and
+callers use their references.
+
+Importing this package does not import numba (about half a second); callers import a kernel
+module when they first need it. A kernel compiles on its first call (seconds), and the
+machine code is cached on disk in ``$NUMBA_CACHE_DIR``, next to the sources or in
+``~/.cache/numba`` (numba's own order), so later processes load it in milliseconds. Where
+none of those can be written (a read-only install with no writable home) kernels compile in
+every process, with one warning.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+#: Options every kernel compiles with. ``error_model="numpy"``: a division by zero gives
+#: inf or nan as in numpy (the references rely on it) instead of raising. No ``fastmath``:
+#: results must equal their references bit for bit.
+KERNEL_OPTIONS = {"nogil": True, "error_model": "numpy"}
+
+
+@functools.cache
+def available() -> bool:
+    """Whether numba can be imported (then the compiled kernels are used)."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def _writable(folder: Path) -> bool:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError:
+        return False
+    return True
+
+
+@functools.cache
+def disk_cache() -> bool:
+    """Whether compiled kernels can be cached on disk (numba raises at the first compile when
+    no place it looks in is writable, so this is decided before)."""
+    candidates = []
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        candidates.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    candidates.append(Path(__file__).parent / "__pycache__")
+    try:
+        candidates.append(Path.home() / ".cache" / "numba")
+    except RuntimeError:
+        pass
+    if any(_writable(folder) for folder in candidates):
+        return True
+    warnings.warn(
+        "liuxing_envs: no folder for numba's cache can be written (set NUMBA_CACHE_DIR to a "
+        "writable folder); the kernels compile again in every process",
+        RuntimeWarning,
+        stacklevel=2,
+    )
+    return False
+
+
+def jit_options() -> dict:
+    """Keyword arguments for ``numba.njit`` of every kernel and helper in this package."""
+    return {"cache": disk_cache(), **KERNEL_OPTIONS}

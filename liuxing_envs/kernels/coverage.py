@@ -1,0 +1,53 @@
+"""The coverage update of :class:`~liuxing_envs.perception.coverage.CoverageTracker`'s grid.
+
+One pass over a view's points: each point's cell, its row in a dense table of the grid's
+cells, then a distance test against every sample registered in that cell that is not
+covered yet. The arithmetic is the numpy reference's (``_hits_grid``): the cell is
+``floor((p - origin) * inv_cell)`` and the squared distance sums x, y, z in that order, so the
+same samples are covered; the gain is a count, so it is exact.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from liuxing_envs.kernels import jit_options
+
+
+@njit(**jit_options())
+def cover(
+    points, origin, inv_cell, dims, strides, cell_slot, cell_ptr, cell_samples, samples, eps2, done
+):
+    """Mark in ``done`` every sample of ``samples`` (N, 3) within ``sqrt(eps2)`` of a point of
+    ``points`` (P, 3); return how many samples this newly marked. ``cell_slot`` maps a cell's
+    linear index to its row of ``cell_ptr`` (-1: no sample registered there)."""
+    gained = 0
+    for p in range(points.shape[0]):
+        key = 0
+        inside = True
+        for c in range(3):
+            cell = np.floor((points[p, c] - origin[c]) * inv_cell)
+            if not (cell >= 0 and cell < dims[c]):
+                inside = False
+                break
+            key += np.int64(cell) * strides[c]
+        if not inside:
+            continue
+        slot = cell_slot[key]
+        if slot < 0:
+            continue
+        for entry in range(cell_ptr[slot], cell_ptr[slot + 1]):
+            sample = np.intp(cell_samples[entry])
+            if done[sample]:
+                continue
+            d = samples[sample, 0] - points[p, 0]
+            d2 = d * d
+            d = samples[sample, 1] - points[p, 1]
+            d2 += d * d
+            d = samples[sample, 2] - points[p, 2]
+            d2 += d * d
+            if d2 <= eps2:
+                done[sample] = True
+                gained += 1
+    return gained
