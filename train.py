@@ -55,7 +55,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-n", "--timesteps", type=int, help="total env steps (default: from YAML)")
     run.add_argument("--seed", type=int, help="random seed (default: 0)")
     run.add_argument("--n-envs", type=int, help="parallel training envs (default: from YAML)")
-    run.add_argument("--vec-env", help="dummy (one process) or subproc (default: dummy)")
+    run.add_argument(
+        "--vec-env",
+        help="dummy (one process), subproc (a process per env) or batched (the task's own "
+        "vector env, one process; the default where the task has one, else dummy)",
+    )
     run.add_argument("--config", metavar="FILE", help="hyper-parameter YAML to use instead")
     run.add_argument(
         "--recipe",

@@ -37,6 +37,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNorm
 
 import liuxing_envs
 from agents import interrupts, run_folder, workers
+from agents.batched_vec_env import BatchedVecEnv
 from agents.config import (
     ALGOS,
     MAX_SEED,
@@ -82,7 +83,9 @@ from liuxing_envs.policy_parts import (
 from liuxing_envs.validation import is_number
 
 ALGO_CLASSES = {"ppo": PPO, "sac": SAC}
-VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv}
+#: How a run's envs are stepped: SB3's vector envs over single envs, or (``batched``) the
+#: task's own vector env (``gym.make_vec``'s vector entry point) through BatchedVecEnv.
+VEC_ENVS = {"dummy": DummyVecEnv, "subproc": SubprocVecEnv, "batched": BatchedVecEnv}
 DEFAULT_ENV_ID = "ViewPlanning-v1"
 DEFAULT_ALGO = "ppo"
 DEFAULT_SEED = 0
@@ -146,7 +149,7 @@ def resolve_config(
     seed: int = DEFAULT_SEED,
     n_timesteps: int | None = None,
     n_envs: int | None = None,
-    vec_env: str = DEFAULT_VEC_ENV,
+    vec_env: str | None = None,
     eval_freq: int = DEFAULT_EVAL_FREQ,
     eval_episodes: int | None = None,
     save_freq: int = DEFAULT_SAVE_FREQ,
@@ -165,6 +168,7 @@ def resolve_config(
     ``final_episodes`` left None scale with the run (:func:`auto_episodes`)."""
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
+    vec_env = default_vec_env(env_id) if vec_env is None else vec_env
     require_known("«vec_env»", vec_env, tuple(VEC_ENVS))
     _refuse_env_kwargs_given_twice(hyperparams or {}, env_kwargs or {})
     _refuse_counts_given_twice(hyperparams or {}, n_timesteps=n_timesteps, n_envs=n_envs)
@@ -230,6 +234,7 @@ def resolve_config(
     check_policy_kwarg_names(algo, config["policy"], named or {})
     if named and "net_arch" in named:
         check_net_arch(algo, named["net_arch"])
+    _check_batched(config)
     return config
 
 
@@ -445,6 +450,29 @@ def _env_factory(config: dict, monitor_file: str | None, keys):
     return make
 
 
+def has_own_vector_env(env_id: str) -> bool:
+    """Whether ``gym.make_vec(env_id, N)`` makes the task's own vector env."""
+    return gym.spec(env_id).vector_entry_point is not None
+
+
+def default_vec_env(env_id: str) -> str:
+    """``batched`` where the id has a vector env of its own, else ``dummy``."""
+    return "batched" if has_own_vector_env(env_id) else DEFAULT_VEC_ENV
+
+
+def _check_batched(config: dict) -> None:
+    if config["vec_env"] != "batched":
+        return
+    if not has_own_vector_env(config["env_id"]):
+        own = [env_id for env_id in liuxing_envs.ENV_IDS if has_own_vector_env(env_id)]
+        raise ConfigError(
+            f"«vec_env» batched needs an env with a vector env of its own ({', '.join(own)}); "
+            f"{config['env_id']} has none: use dummy or subproc"
+        )
+    if config.get("start_curriculum"):
+        raise ConfigError("«vec_env» batched cannot wrap each env in a start curriculum")
+
+
 def build_vec_env(config: dict, run_dir: Path, start_steps: int = 0) -> gym.Env:
     """The training envs of a start (``start_steps`` 0) or resume of the run, each logging
     its episodes to a Monitor file of its own (see :func:`run_folder.monitor_path`)."""
@@ -454,14 +482,20 @@ def build_vec_env(config: dict, run_dir: Path, start_steps: int = 0) -> gym.Env:
     # overwrote that run's monitor files (its training episodes).
     stamp = time.time_ns()
     n_envs = config["n_envs"]
-    factories = [
-        _env_factory(
-            config,
-            str(run_folder.monitor_path(run_dir, rank, n_envs, start_steps, stamp)),
-            (task.metric,),
-        )
+    monitor_files = [
+        str(run_folder.monitor_path(run_dir, rank, n_envs, start_steps, stamp))
         for rank in range(n_envs)
     ]
+    if config["vec_env"] == "batched":
+        _check_batched(config)
+        check_env_kwargs(config["env_id"], config["env_kwargs"])
+        try:
+            envs = gym.make_vec(config["env_id"], n_envs, **config["env_kwargs"])
+        except (TypeError, ValueError, FileNotFoundError) as error:
+            message = f"{config['env_id']} with env kwargs {config['env_kwargs']}: {error}"
+            raise ConfigError(message) from error
+        return BatchedVecEnv(envs, monitor_files, (task.metric,))
+    factories = [_env_factory(config, path, (task.metric,)) for path in monitor_files]
     return VEC_ENVS[config["vec_env"]](factories)
 
 

@@ -27,6 +27,8 @@ class Registration:
     kwargs: MappingProxyType = field(default_factory=lambda: MappingProxyType({}))
     max_episode_steps: int | None = None
     deprecated: bool = False
+    #: What ``gym.make_vec`` makes N envs of the id with by default (a vector env of its own).
+    vector_entry_point: str | None = None
 
     @property
     def gym_entry_point(self) -> str:
@@ -118,7 +120,12 @@ VIEW_PLANNING = "liuxing_envs.envs.view_planning:ViewPlanningEnv"
 INSTRUMENT_GRASP = "liuxing_envs.envs.instrument_grasp:InstrumentGraspEnv"
 
 REGISTRATIONS = (
-    _view_planning("ViewPlanning-v1"),
+    Registration(
+        "ViewPlanning-v1",
+        "ViewPlanning",
+        VIEW_PLANNING,
+        vector_entry_point="liuxing_envs.envs.view_planning_vector:ViewPlanningVectorEnv",
+    ),
     _view_planning("ViewPlanningDiscrete-v1", action_mode="discrete"),
     _instrument_grasp("InstrumentGrasp-v1"),
     _instrument_grasp("InstrumentGraspDepth-v1", obs_mode="depth"),
@@ -199,4 +206,5 @@ def register_all() -> None:
                 entry_point=registration.gym_entry_point,
                 max_episode_steps=registration.max_episode_steps,
                 kwargs=dict(registration.kwargs),
+                vector_entry_point=registration.vector_entry_point,
             )

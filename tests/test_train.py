@@ -134,7 +134,7 @@ def test_the_default_run_is_the_one_the_readme_describes():
     assert (config["env_id"], config["algo"], config["seed"]) == ("ViewPlanning-v1", "ppo", 0)
     assert (config["n_timesteps"], config["final_episodes"]) == (80_000, 50)
     assert config["env_kwargs"]["object_set"] == "procedural"
-    assert config["vec_env"] == "dummy"  # its envs stepped in one process (README: Speed)
+    assert config["vec_env"] == "batched"  # ViewPlanning's own vector env, one process
 
 
 @pytest.mark.parametrize("script", ["train", "evaluate"])
@@ -303,11 +303,19 @@ def test_bad_flags_exit_with_a_message_naming_the_problem(argv, message, capsys)
     assert message in capsys.readouterr().err
 
 
+def test_batched_envs_are_refused_for_a_task_without_a_vector_env_of_its_own():
+    with pytest.raises(ConfigError, match="vec_env batched needs an env with a vector env of its own"):
+        training.resolve_config(env_id="InstrumentGrasp-v1", algo="sac", vec_env="batched")
+    grasp = training.resolve_config(env_id="InstrumentGrasp-v1", algo="sac")
+    assert grasp["vec_env"] == "dummy"
+
+
 @pytest.mark.parametrize(
     "vec_env, env_kwarg, reason",
     [
         ("dummy", "view_budget=-1", "view_budget must be an integer in [1, 64], got -1"),
         ("dummy", "objects=[no/such.obj]", "'no/such.obj' is not a library object"),
+        ("batched", "view_budget=-1", "view_budget must be an integer in [1, 64], got -1"),
         # A SubprocVecEnv worker prints its own traceback; the parent says where to look.
         ("subproc", "view_budget=-1", "a worker process died building it"),
     ],
@@ -1229,7 +1237,7 @@ def test_a_run_folder_of_an_unknown_algorithm_is_refused_on_resume(quick_ppo_run
     "saved, edited, message",
     [
         ("n_envs: 2", "n_envs: two", "n_envs must be an integer >= 1, got 'two'"),
-        ("vec_env: dummy", "vec_env: subprocess", "unknown vec_env 'subprocess'"),
+        ("vec_env: batched", "vec_env: subprocess", "unknown vec_env 'subprocess'"),
         ("seed: 0", "seed: zero", "seed must be an integer in [0, 4294967295], got 'zero'"),
         ("final_episodes: 0", "final_episodes: -1", "final_episodes must be an integer >= 0"),
         ("env_kwargs:", "env_kwargs: 5\nold_env_kwargs:", "env_kwargs must be a mapping, got 5"),
@@ -1438,7 +1446,11 @@ def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "interrupt, vec_env",
-    [(signal.SIGINT, "dummy"), (signal.SIGTERM, "dummy"), (signal.SIGINT, "subproc")],
+    [
+        (signal.SIGINT, "dummy"),
+        (signal.SIGTERM, "batched"),
+        (signal.SIGINT, "subproc"),
+    ],
 )
 def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, vec_env, tmp_path):
     # PPO collects 2 envs x 32 steps per rollout: an uninterrupted 1000-step run ends at 1024.

@@ -26,7 +26,7 @@ INSTRUMENT_SETS = {
     ),
 }  # fmt: skip
 #: ``liuxing_envs.sim.camera.BACKENDS``.
-DEPTH_BACKENDS = ("auto", "gl", "raycast", "embree")
+DEPTH_BACKENDS = ("auto", "gl", "raycast", "multiray", "embree")
 #: The simulated gripper's (``liuxing_envs.sim.gripper``): both fingers' full opening (m), the
 #: finger servos' force range (N) and a force-commanded finger's damping (N s/m).
 MAX_OPENING = 0.08
@@ -331,8 +331,8 @@ class GraspSensors(Part):
     resolution: int = knob(64, "Side of the square wrist images.", unit="px", only_with=IMAGES)
     depth_backend: str = knob(
         "raycast",
-        "How depth is rendered: 'raycast' (the same image on every machine), 'gl', 'embree' "
-        "or 'auto'.",
+        "How depth is rendered: 'raycast' (the same image on every machine), 'multiray' "
+        "(the same image from MuJoCo's mj_multiRay), 'gl', 'embree' or 'auto'.",
         only_with=IMAGES,
     )
 

@@ -34,7 +34,7 @@ ACTION_MODES = ("continuous", "discrete")
 #: liuxing_envs.sim.objects.OBJECT_SETS (a test keeps them equal; those modules import
 #: MuJoCo and open3d).
 MOTION_MODES = ("kinematic", "dynamic")
-DEPTH_BACKENDS = ("auto", "gl", "raycast", "embree")
+DEPTH_BACKENDS = ("auto", "gl", "raycast", "multiray", "embree")
 OBJECT_SET_NAMES = ("train", "validation", "held_out", "all", "procedural")
 CONTINUOUS = {"action_mode": ("continuous",)}
 
@@ -173,8 +173,9 @@ class SensorSettings(Part):
     resolution: int = knob(64, "Side of the square depth image.", unit="px")
     depth_backend: str = knob(
         "raycast",
-        "'raycast' (the same images on every machine), 'embree' (faster), 'gl' (OpenGL) or "
-        "'auto' (gl where OpenGL works, else raycast).",
+        "'raycast' (the same images on every machine; a compiled kernel where numba is "
+        "installed), 'multiray' (the same images from MuJoCo's mj_multiRay), 'embree', 'gl' "
+        "(OpenGL) or 'auto' (gl where OpenGL works, else raycast).",
     )
     depth_noise: object = knob(
         None,

@@ -1,16 +1,20 @@
 """A simulated depth camera (RealSense D435-like) on a MuJoCo camera, with optional noise.
 
-Three interchangeable backends produce the same depth image:
+Interchangeable backends produce the same depth image:
 
 * ``"gl"``: MuJoCo's OpenGL renderer (:class:`mujoco.Renderer`) reading the depth buffer.
   Needs an OpenGL context; on a headless machine set ``MUJOCO_GL=egl`` (or ``osmesa``)
   *before* ``mujoco`` is first imported.
-* ``"raycast"``: one :func:`mujoco.mj_multiRay` ray per pixel centre. No GL needed; geoms are
-  intersected analytically (GL draws curved primitives as tessellated meshes, so the two can
-  differ by a fraction of a millimetre on spheres and cylinders). In a tabletop scene, rays
-  that can only land on the table top are solved in numpy with MuJoCo's arithmetic instead
-  (:class:`~liuxing_envs.sim.depth_backends.TableShortcut`; the image is unchanged, bit for
-  bit).
+* ``"raycast"``: one ray per pixel centre, intersected with MuJoCo's own arithmetic: the
+  image of :func:`mujoco.mj_multiRay`, bit for bit. No GL needed; geoms are intersected
+  analytically (GL draws curved primitives as tessellated meshes, so the two can differ by a
+  fraction of a millimetre on spheres and cylinders). Cast by a compiled kernel where numba
+  is installed (:class:`~liuxing_envs.sim.depth_backends.CompiledBackend`, about twice as
+  fast), else as ``"multiray"``.
+* ``"multiray"``: the same image from :func:`mujoco.mj_multiRay` itself, with no numba; in a
+  tabletop scene, rays that can only land on the table top are solved in numpy with MuJoCo's
+  arithmetic (:class:`~liuxing_envs.sim.depth_backends.TableShortcut`; the image is
+  unchanged, bit for bit).
 * ``"embree"``: the ray-cast backend with mesh geoms intersected by Embree (open3d's
   ``RaycastingScene``) in float32 (:class:`~liuxing_envs.sim.depth_backends.EmbreeBackend`):
   the same pixels hold returns, depths agree to a few micrometres, and a view of a mesh
@@ -39,6 +43,7 @@ from liuxing_envs.perception.pointcloud import (
 )
 from liuxing_envs.sim.depth_backends import (
     BOX_CORNERS,
+    CompiledBackend,
     DepthBackend,
     EmbreeBackend,
     GLBackend,
@@ -78,9 +83,9 @@ DEFAULT_MAX_DEPTH = 3.0
 #: geoms by convention) are invisible to the camera.
 DEPTH_GEOM_GROUPS: tuple[int, ...] = (0, 1, 2)
 
-BACKENDS: tuple[str, ...] = ("auto", "gl", "raycast", "embree")
+BACKENDS: tuple[str, ...] = ("auto", "gl", "raycast", "multiray", "embree")
 #: The backends that cast rays, which can cast them into a stand-in scene (``render(scene=)``).
-RAY_CAST_BACKENDS: tuple[str, ...] = ("raycast", "embree")
+RAY_CAST_BACKENDS: tuple[str, ...] = ("raycast", "multiray", "embree")
 DEFAULT_BACKEND = "auto"
 
 # RealSense-like noise preset. Stereo depth error grows with z^2: sigma_z = z^2 * e / (f * b)
@@ -441,8 +446,9 @@ class DepthCamera:
     intrinsics
         Image size, field of view and valid range.
     backend
-        ``"gl"``, ``"raycast"``, ``"embree"``, or ``"auto"`` (gl when an OpenGL context can be
-        made, else raycast with a warning). :attr:`backend` says which one is in use.
+        ``"gl"``, ``"raycast"``, ``"multiray"``, ``"embree"``, or ``"auto"`` (gl when an
+        OpenGL context can be made, else raycast with a warning). :attr:`backend` says which
+        one is in use.
     noise
         Optional :class:`DepthNoise`; when it is enabled, :meth:`render` needs an ``rng``.
     geom_groups
@@ -513,6 +519,8 @@ class DepthCamera:
         if backend == "gl":
             return GLBackend(*args)
         if backend == "raycast":
+            return self._exact_ray_caster(args)
+        if backend == "multiray":
             return RaycastBackend(*args)
         if backend == "embree":
             return EmbreeBackend(*args)
@@ -525,7 +533,15 @@ class DepthCamera:
                 RuntimeWarning,
                 stacklevel=3,
             )
-            return RaycastBackend(*args)
+            return self._exact_ray_caster(args)
+
+    @staticmethod
+    def _exact_ray_caster(args) -> DepthBackend:
+        """``"raycast"``: the compiled kernel where numba is installed, else mj_multiRay (the
+        same image)."""
+        from liuxing_envs import kernels
+
+        return CompiledBackend(*args) if kernels.available() else RaycastBackend(*args)
 
     # -- rendering --
 
@@ -543,11 +559,12 @@ class DepthCamera:
         from them here with :func:`mujoco.mj_camlight`. ``rng`` drives the noise model and is
         required when :attr:`noise` is enabled.
 
-        ``scene`` (the ray-casting backends, raycast and embree, only): a ``(model, data)``
-        pair whose geoms the rays are cast against instead of ``data``'s own, for instance a
-        stand-in holding only what :meth:`may_see_geoms` allows to be in view (each geom and
-        body of a model costs every ray a bounding test). The camera pose is still read from
-        ``data``; the stand-in's geoms must be posed in the same world frame.
+        ``scene`` (the ray-casting backends, raycast, multiray and embree, only): a
+        ``(model, data)`` pair whose geoms the rays are cast against instead of ``data``'s
+        own, for instance a stand-in holding only what :meth:`may_see_geoms` allows to be in
+        view (each geom and body of a model costs every ray a bounding test). The camera pose
+        is still read from ``data``; the stand-in's geoms must be posed in the same world
+        frame.
         """
         backend = self._require_open()
         if self.noise.enabled and rng is None:

@@ -7,6 +7,8 @@ MuJoCo state into a depth image, and the ray-cast backend's shortcuts.
   (:class:`TableShortcut`, with :class:`PixelGrid` and :class:`ViewFrustum` bounding which
   rays and obstacles to test), bit for bit the image casting every ray gives.
 * :class:`EmbreeBackend`: the ray-cast backend with mesh geoms handed to Embree.
+* :class:`CompiledBackend`: the ray-cast backend's image, bit for bit, from a compiled
+  (numba) kernel with MuJoCo's arithmetic (:mod:`liuxing_envs.kernels.depth`).
 
 A :class:`~liuxing_envs.sim.camera.DepthCamera` makes and owns its backend
 (:attr:`~liuxing_envs.sim.camera.DepthCamera.active_backend`); the classes are public so that
@@ -32,6 +34,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "BOX_CORNERS",
+    "CompiledBackend",
     "DepthBackend",
     "EmbreeBackend",
     "GLBackend",
@@ -465,9 +468,10 @@ class SceneCache(NamedTuple):
 
 
 class RaycastBackend:
-    """One :func:`mujoco.mj_multiRay` ray per pixel centre."""
+    """One :func:`mujoco.mj_multiRay` ray per pixel centre (``"multiray"``; ``"raycast"``
+    where numba is missing)."""
 
-    name = "raycast"
+    name = "multiray"
 
     def __init__(
         self,
@@ -645,3 +649,154 @@ class EmbreeBackend(RaycastBackend):
             )
             self._meshes[key] = scene
         return self._meshes[key]
+
+
+class _CompiledScene(NamedTuple):
+    """What the compiled backend keeps of one scene model."""
+
+    inputs: tuple  #: the SceneCache.inputs it was made from
+    geoms: np.ndarray | None  #: the geoms rays can hit; None: a type the kernel cannot cast
+    arrays: tuple  #: the model's arrays the kernel reads, and its mesh tables
+    vertex_px: np.ndarray  #: scratch, one row per vertex of the largest mesh
+
+
+class CompiledBackend(RaycastBackend):
+    """The ray-cast backend's image from a compiled kernel, bit for bit.
+
+    :func:`liuxing_envs.kernels.depth.cast_image` casts every pixel ray with MuJoCo's own
+    arithmetic for each geom type (``engine_ray.c``) and the culls of ``mj_multiRay`` that
+    rounding could make matter (the cut-off, body bounding spheres, a mesh's box and the
+    slab tests of its tree), testing each triangle only against the pixels it projects to.
+    ``tests/test_depth_kernel.py`` checks its images against casting every ray with
+    ``mj_multiRay``. Scenes holding a geom type the kernel does not cast (height fields,
+    SDFs) are cast by mj_multiRay. Needs numba; ``"raycast"`` picks it where numba is
+    installed, else :class:`RaycastBackend`.
+    """
+
+    name = "raycast"
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        camera_id: int,
+        intrinsics: CameraIntrinsics,
+        geom_groups: Sequence[int],
+    ) -> None:
+        from liuxing_envs import kernels
+
+        if not kernels.available():
+            raise ImportError(
+                "CompiledBackend needs numba, which cannot be imported here; install it (pip "
+                "install numba) or use depth_backend='multiray' (the same images, no numba)"
+            )
+        from liuxing_envs.kernels import depth as depth_kernel
+
+        super().__init__(model, camera_id, intrinsics, geom_groups)
+        self._kernel = depth_kernel
+        self._intrinsics = (
+            float(intrinsics.fx),
+            float(intrinsics.fy),
+            float(intrinsics.cx),
+            float(intrinsics.cy),
+            int(intrinsics.height),
+            int(intrinsics.width),
+        )
+        self._image = np.empty(self._nray, dtype=np.float32)
+        self._ray_local = np.empty((self._nray, 9), dtype=np.float64)
+        self._ready = np.empty(self._nray, dtype=np.uint8)
+        self._corners = np.empty((8, 3), dtype=np.float64)
+        self._compiled: dict[mujoco.MjModel, _CompiledScene] = {}
+
+    def render(
+        self, data: mujoco.MjData, scene: tuple[mujoco.MjModel, mujoco.MjData] | None = None
+    ) -> np.ndarray:
+        model, scene_data = (self._model, data) if scene is None else scene
+        compiled = self._compiled_scene(model, scene_data)
+        if compiled.geoms is None:
+            return super().render(data, scene)
+        position = np.array(data.cam_xpos[self._camera_id], dtype=np.float64)
+        rotation = data.cam_xmat[self._camera_id].reshape(3, 3)
+        # The same rays, by the same numpy product, as the ray-cast backend casts.
+        rays = self._rays_cam @ rotation.T
+        fx, fy, cx, cy, height, width = self._intrinsics
+        self._kernel.cast_image(
+            self._image,
+            self._dist,
+            position,
+            rotation,
+            rays,
+            self._cos_axis,
+            self._cutoff,
+            fx,
+            fy,
+            cx,
+            cy,
+            height,
+            width,
+            compiled.geoms,
+            *compiled.arrays[:6],
+            scene_data.geom_xpos,
+            scene_data.geom_xmat,
+            compiled.arrays[6],
+            compiled.arrays[7],
+            scene_data.xipos,
+            scene_data.ximat,
+            *compiled.arrays[8:],
+            self._ray_local,
+            self._ready,
+            compiled.vertex_px,
+            self._corners,
+        )
+        return self._image.reshape(self._shape).copy()
+
+    def _compiled_scene(self, model: mujoco.MjModel, data: mujoco.MjData) -> _CompiledScene:
+        cached = self.scene_for(model, data)
+        compiled = self._compiled.get(model)
+        if compiled is not None and compiled.inputs is cached.inputs:
+            return compiled
+        geoms = np.flatnonzero(cached.seen).astype(np.int64)
+        types = model.geom_type[geoms]
+        supported = np.isin(types, self._kernel.SUPPORTED_TYPES).all()
+        face_leaf = bvh_parent = None
+        if supported:
+            try:
+                face_leaf, bvh_parent = self._kernel.mesh_tables(
+                    model.nmeshface,
+                    model.nbvh,
+                    model.mesh_bvhadr,
+                    model.mesh_bvhnum,
+                    model.mesh_faceadr,
+                    model.bvh_child,
+                    model.bvh_nodeid,
+                )
+            except ValueError:
+                supported = False
+        mesh_vert = model.mesh_vert if model.nmesh else np.zeros((1, 3), np.float32)
+        mesh_face = model.mesh_face if model.nmesh else np.zeros((1, 3), np.int32)
+        arrays = (
+            model.geom_type,
+            model.geom_size,
+            model.geom_aabb,
+            model.geom_rbound,
+            model.geom_bodyid,
+            model.geom_dataid,
+            model.body_bvhadr,
+            model.bvh_aabb if model.nbvh else np.zeros((1, 6)),
+            model.mesh_vertadr,
+            model.mesh_vertnum,
+            model.mesh_faceadr,
+            model.mesh_facenum,
+            mesh_vert,
+            mesh_face,
+            face_leaf,
+            bvh_parent,
+        )
+        vertices = int(model.mesh_vertnum.max()) if model.nmesh else 1
+        compiled = _CompiledScene(
+            cached.inputs,
+            geoms if supported else None,
+            arrays,
+            np.empty((max(vertices, 1), 3), dtype=np.float64),
+        )
+        self._compiled[model] = compiled
+        return compiled
