@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.sim.arm_model import ArmPart, finite_qpos, homogeneous, require_id, subtree
 from liuxing_envs.sim.scene import (
     ARM_BASE_BODY,
@@ -75,10 +76,26 @@ class ArmIK(ArmPart):
 
     The random restarts of the DLS solver are seeded with the arm's ``ik_seed``, so the same
     query gives the same answer.
+
+    ``compiled``: whether the roll-free closed form (a camera's view, every sampled roll at
+    once) runs in the compiled kernel (:mod:`liuxing_envs.kernels.ik`) or in numpy
+    (:func:`~liuxing_envs.sim.ur_ik.ur_ik` and :meth:`nearest_first`). Both give the same
+    candidates bit for bit; None (the default) picks the kernel where numba is installed. The
+    attribute of that name may be set later (a test compares the two).
     """
 
-    def __init__(self, arm: Arm, collisions: ArmCollisions) -> None:
+    #: See the class docstring (a class default: copies pickled without it use numpy).
+    compiled = False
+
+    def __init__(
+        self, arm: Arm, collisions: ArmCollisions, *, compiled: bool | None = None
+    ) -> None:
         super().__init__(arm)
+        if compiled is None:
+            compiled = kernels.available()
+        elif compiled and not kernels.available():
+            raise ValueError("compiled=True needs numba, which is not installed")
+        self.compiled = bool(compiled)
         self._collisions = collisions
         model = arm.model
         self._flange_in_site: dict[int, np.ndarray | None] = {}
@@ -298,8 +315,12 @@ class ArmIK(ArmPart):
             site_poses[:, :3, :3] = target_r @ _ROLLS  # turning about the site's own z keeps z
             site_poses[:, :3, 3] = target_p
             site_poses[:, 3] = _HOMOGENEOUS_ROW
-            solutions, valid = ur_ik(self._base_inverse @ site_poses @ flange_in_site)
-            ordered = self.nearest_first(solutions[valid], reference)
+            flange_poses = self._base_inverse @ site_poses @ flange_in_site
+            if self.compiled:
+                ordered = self._nearest_compiled(flange_poses, reference)
+            else:
+                solutions, valid = ur_ik(flange_poses)
+                ordered = self.nearest_first(solutions[valid], reference)
         else:  # a controller's target: one pose, on Python floats (see ur_ik)
             ordered = self._one_pose_nearest_first(target_p, target_r, flange_in_site, reference)
         tried, colliding = 0, None
@@ -314,6 +335,21 @@ class ArmIK(ArmPart):
                 False, colliding, sid, target_p, target_r, roll_free, tried, True
             )
         return IKResult(False, reference.copy(), np.inf, np.inf, 0, tried, False)
+
+    def _nearest_compiled(self, flange_poses: np.ndarray, reference: np.ndarray) -> np.ndarray:
+        """:meth:`nearest_first` of the valid ``ur_ik(flange_poses)``, by the compiled kernel:
+        the same rows, bit for bit."""
+        from liuxing_envs.kernels.ik import nearest_solutions
+
+        lower, upper = self._arm.lower, self._arm.upper
+        return nearest_solutions(
+            flange_poses,
+            np.asarray(reference, dtype=np.float64),
+            lower - IK_LIMIT_SLACK,
+            upper + IK_LIMIT_SLACK,
+            lower,
+            upper,
+        )
 
     def _one_pose_nearest_first(self, position, rotation, flange_in_site, reference):
         """The closed-form solutions for one site pose, as :meth:`nearest_first_of_few`
