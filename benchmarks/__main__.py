@@ -19,19 +19,19 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from benchmarks import peers, physics, scaling, throughput, time_split, training  # noqa: E402
+from benchmarks import kernels, peers, physics, scaling, throughput, time_split, training  # noqa: E402
 from benchmarks.isolated import describe_cores, machine, spread  # noqa: E402
 from benchmarks.report_files import check_writable, report_paths  # noqa: E402
 from benchmarks.throughput import GRASP, GRASP_STATE, VIEW_DEFAULT, VIEW_PLANNING, Config  # noqa: E402
 
-SECTIONS = ("throughput", "split", "physics", "peers", "scaling", "training")
+SECTIONS = ("throughput", "split", "kernels", "physics", "peers", "scaling", "training")
 DEFAULT_OUT = Path(__file__).parent / "RESULTS.md"
 
 #: Targets of the benchmark issue, as ratios measured in one run.
 VIEW_TARGET = 1000.0  # view-steps/s, default mode, 64x64, one core
 VIEW_PEER_RATIO = 7.0  # x FetchPickAndPlace-v4 with 84x84 rendering
 GRASP_PEER_RATIO = 1.0  # x FetchPickAndPlace-v4 without rendering (state obs)
-GRASP_PHYSICS_FRACTION = 0.5
+GRASP_PHYSICS_FRACTION = 0.8
 ASYNC_TWO_WORKER_SPEEDUP = 1.6
 
 
@@ -204,6 +204,23 @@ def run(
             results["split"].append({"env_id": config.env_id, "mode": config.label, **measured})
             on_progress(results)
     finished("split")
+    if "kernels" in sections:
+        rounds = 2 if quick else 5
+        _progress("kernels: a view step against one MuJoCo image")
+        results["kernels"] = {"view_step": kernels.view_step(max(40, int(400 * scale)), rounds)}
+        on_progress(results)
+        _progress("kernels: each compiled kernel against its reference")
+        results["kernels"]["kernels"] = kernels.kernel_ratios(rounds)
+        on_progress(results)
+        _progress("kernels: the vector env against SyncVectorEnv")
+        sizes = (1, 2) if quick else kernels.VECTOR_SIZES
+        results["kernels"]["vector_env"] = kernels.vector_env(
+            sizes, max(8, int(64 * scale)), rounds
+        )
+        on_progress(results)
+        _progress("kernels: the first gym.make in a fresh process")
+        results["kernels"]["first_make"] = kernels.first_make(1 if quick else 3)
+    finished("kernels")
     if "physics" in sections:
         results["physics"] = []
         dynamic = Config(VIEW_PLANNING, {**VIEW_DEFAULT.kwargs, "motion": "dynamic"})
@@ -361,6 +378,27 @@ def targets(results: dict) -> list[tuple]:
                 ratio >= GRASP_PEER_RATIO,
             )
         )
+    measured = results.get("kernels") or {}
+    if "view_step" in measured:
+        ratio = measured["view_step"]["step_to_reference"]
+        out.append(
+            (
+                "ViewPlanning-v1 view step / one 64x64 image cast by MuJoCo (the reference "
+                f"scene): <= {kernels.STEP_TO_REFERENCE_TARGET:.1f}x",
+                f"{ratio:.2f}x",
+                ratio <= kernels.STEP_TO_REFERENCE_TARGET,
+            )
+        )
+    if "first_make" in measured:
+        seconds = measured["first_make"]["median_s"]
+        out.append(
+            (
+                f"first gym.make('ViewPlanning-v1') in a process, warm caches: "
+                f"< {kernels.FIRST_MAKE_TARGET_S:.0f} s",
+                f"{seconds:.2f} s",
+                seconds < kernels.FIRST_MAKE_TARGET_S,
+            )
+        )
     limit = _find(results.get("physics") or [], env_id=GRASP)
     if limit and grasp and limit.get("limit"):
         fraction = grasp["median"] / limit["limit"]
@@ -388,6 +426,43 @@ def targets(results: dict) -> list[tuple]:
                 )
             )
     return out
+
+
+def _kernel_tables(measured: dict) -> list[str]:
+    """The kernels section: a view step against MuJoCo's image, each kernel, the vector env."""
+    lines = ["## Compiled kernels", "", kernels.__doc__.split("\n\n")[1].replace("\n", " "), ""]
+    step = measured.get("view_step")
+    if step:
+        lines += _table(
+            ("one MuJoCo image ms", "view step ms", "step / image", "reset ms"),
+            [
+                (
+                    f"{step['reference_ms']:.3f}",
+                    f"{step['step_ms']:.3f}",
+                    f"{step['step_to_reference']:.2f}x",
+                    f"{step['reset_ms']:.3f}",
+                )
+            ],
+        )
+    if measured.get("kernels"):
+        lines += _table(
+            ("kernel", "reference ms / call", "compiled ms / call", "speed-up"),
+            [
+                (k["kernel"], f"{k['reference_ms']:.3f}", f"{k['compiled_ms']:.3f}",
+                 f"{k['speedup']:.2f}x")
+                for k in measured["kernels"]
+            ],
+        )  # fmt: skip
+    if measured.get("vector_env"):
+        lines += _table(
+            ("scenes", "own vector env ms / scene-step", "SyncVectorEnv ms", "speed-up"),
+            [
+                (v["num_envs"], f"{v['batched_ms_per_scene_step']:.3f}",
+                 f"{v['sync_ms_per_scene_step']:.3f}", f"{v['sync_to_batched']:.2f}x")
+                for v in measured["vector_env"]
+            ],
+        )  # fmt: skip
+    return lines
 
 
 def report(results: dict, command: str) -> str:
@@ -467,6 +542,8 @@ def report(results: dict, command: str) -> str:
                 ("phase", "ms / step", "share"),
                 [(p, f"{ms:.3f}", f"{ms / total:.0%}") for p, ms in phases],
             )
+    if "kernels" in results:
+        lines += _kernel_tables(results["kernels"])
     if "physics" in results:
         lines += [
             "## The physics limit",

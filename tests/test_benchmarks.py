@@ -102,6 +102,25 @@ def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
         assert refused.returncode == 2 and message in refused.stderr
 
 
+def test_quick_kernels_section_compares_each_kernel_and_a_view_step_with_mujoco(tmp_path):
+    out = tmp_path / "RESULTS.md"
+    run_script("-m", "benchmarks", "--quick", "--sections", "kernels", "--out", str(out))
+    text = out.read_text()
+    measured = json.loads(out.with_suffix(".json").read_text())["kernels"]
+    assert "## Compiled kernels" in text and "view step / one 64x64 image cast by MuJoCo" in text
+    step = measured["view_step"]
+    assert 0 < step["reference_ms"] and step["step_to_reference"] == pytest.approx(
+        step["step_ms"] / step["reference_ms"]
+    )
+    assert [k["kernel"] for k in measured["kernels"]] == [
+        "coverage update",
+        "depth image 64x64",
+        "roll-free IK (24 rolls)",
+    ]
+    assert [v["num_envs"] for v in measured["vector_env"]] == [1, 2]
+    assert 0 < measured["first_make"]["median_s"]
+
+
 def test_gymnasium_async_scaling_counts_only_calls_that_step_every_env():
     # Each call of step() is counted as one env step per worker, so a call must not be a
     # reset alone (Gymnasium's default NEXT_STEP autoreset): with 4-view episodes every env

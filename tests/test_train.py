@@ -304,7 +304,7 @@ def test_bad_flags_exit_with_a_message_naming_the_problem(argv, message, capsys)
 
 
 def test_batched_envs_are_refused_for_a_task_without_a_vector_env_of_its_own():
-    with pytest.raises(ConfigError, match="vec_env batched needs an env with a vector env of its own"):
+    with pytest.raises(ConfigError, match="batched needs an env with a vector env of its own"):
         training.resolve_config(env_id="InstrumentGrasp-v1", algo="sac", vec_env="batched")
     grasp = training.resolve_config(env_id="InstrumentGrasp-v1", algo="sac")
     assert grasp["vec_env"] == "dummy"

@@ -119,7 +119,8 @@ def test_sb3_adapter_steps_as_dummy_vec_env_over_monitored_envs(tmp_path):
     for t, step_actions in enumerate(actions(2, 10)):
         got, expected = batched.step(step_actions), dummy.step(step_actions)
         ended += sum("terminal_observation" in info for info in got[3])
-        for value, reference, name in zip(got, expected, ("obs", "rewards", "dones", "infos")):
+        names = ("obs", "rewards", "dones", "infos")
+        for value, reference, name in zip(got, expected, names, strict=True):
             if name == "infos":  # the episode's time differs
                 for info in (*value, *reference):
                     info.get("episode", {}).pop("t", None)

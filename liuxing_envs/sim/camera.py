@@ -447,7 +447,8 @@ class DepthCamera:
         Image size, field of view and valid range.
     backend
         ``"gl"``, ``"raycast"``, ``"multiray"``, ``"embree"``, or ``"auto"`` (gl when an
-        OpenGL context can be made, else raycast with a warning). :attr:`backend` says which
+        OpenGL context can be made on a GPU; raycast on a software renderer such as Mesa's
+        llvmpipe, and with a warning where no context can be made). :attr:`backend` says which
         one is in use.
     noise
         Optional :class:`DepthNoise`; when it is enabled, :meth:`render` needs an ``rng``.
@@ -525,7 +526,7 @@ class DepthCamera:
         if backend == "embree":
             return EmbreeBackend(*args)
         try:
-            return GLBackend(*args)
+            gl = GLBackend(*args)
         except Exception as exc:  # any failure to get a GL context means: no GL here
             warnings.warn(
                 f"DepthCamera: OpenGL depth rendering unavailable ({type(exc).__name__}: "
@@ -534,6 +535,10 @@ class DepthCamera:
                 stacklevel=3,
             )
             return self._exact_ray_caster(args)
+        if gl.software:  # OpenGL on the CPU: ray casting is faster and machine-independent
+            gl.close()
+            return self._exact_ray_caster(args)
+        return gl
 
     @staticmethod
     def _exact_ray_caster(args) -> DepthBackend:

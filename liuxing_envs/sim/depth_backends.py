@@ -17,6 +17,7 @@ tests and benchmarks can look into their workings.
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Sequence
@@ -139,6 +140,10 @@ def _group_mask(groups: Sequence[int]) -> np.ndarray:
     return mask
 
 
+#: Words in the GL_RENDERER string of renderers that run on the CPU.
+SOFTWARE_RENDERERS = ("llvmpipe", "softpipe", "swrast", "software rasterizer", "swiftshader")
+
+
 class GLBackend:
     """Depth buffer of MuJoCo's offscreen OpenGL renderer."""
 
@@ -209,6 +214,24 @@ class GLBackend:
         camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         camera.fixedcamid = camera_id
         self._camera = camera
+
+    @functools.cached_property
+    def renderer_name(self) -> str:
+        """The OpenGL renderer's name (``GL_RENDERER``), or "" where it cannot be read."""
+        try:
+            self._renderer._gl_context.make_current()
+            from OpenGL import GL
+
+            return GL.glGetString(GL.GL_RENDERER).decode(errors="replace")
+        except Exception:  # a platform without the attribute or PyOpenGL's binding: unknown
+            return ""
+
+    @property
+    def software(self) -> bool:
+        """Whether the renderer runs on the CPU (Mesa's llvmpipe, softpipe or swrast, ...),
+        where ray casting is faster at the envs' image sizes."""
+        name = self.renderer_name.lower()
+        return any(word in name for word in SOFTWARE_RENDERERS)
 
     def render(self, data: mujoco.MjData) -> np.ndarray:
         assert self._renderer is not None

@@ -1,0 +1,335 @@
+"""The compiled kernels against what they replace, and a view step against MuJoCo's own cost.
+
+Every figure is a ratio measured in one process, alternating the two sides and keeping each
+side's fastest of several rounds, so a machine busy with other work slows both alike:
+
+* **reference**: MuJoCo casting one 64x64 depth image of a small scene (a table box and a
+  UV-sphere mesh of 960 triangles, 0.13 m across, seen from 0.4 m) with one ``mj_multiRay``
+  after one ``mj_kinematics``: the C cost a view step is measured against.
+* **view step**: one ``ViewPlanning-v1`` step with its defaults (a view taken: IK, path checks,
+  depth, fusion, coverage, observation); resets are timed apart and not counted.
+* **vector env**: ``gym.make_vec("ViewPlanning-v1", N)`` per scene-step, against Gymnasium's
+  ``SyncVectorEnv`` of N envs in its same-step autoreset mode (both include the resets that
+  their steps make).
+* **kernels**: the coverage update, the depth image and the roll-free IK, compiled against
+  their numpy or ``mj_multiRay`` references, on inputs recorded from seeded episodes.
+* **first make**: seconds from a fresh interpreter to a made ``ViewPlanning-v1`` (warm
+  caches), median of three.
+
+Run: ``MUJOCO_GL=egl python -m benchmarks --sections kernels``.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+ENV_ID = "ViewPlanning-v1"
+RESOLUTION = 64
+#: A view step no dearer than casting one image with MuJoCo (the issue's target).
+STEP_TO_REFERENCE_TARGET = 1.0
+FIRST_MAKE_TARGET_S = 2.0
+VECTOR_SIZES = (1, 4, 16)
+
+
+def reference_scene_xml(rings: int = 16, segments: int = 32, radius: float = 0.065) -> str:
+    """The reference scene: a table top and a UV sphere of ``2 * segments * (rings - 1)``
+    triangles on it, and a camera 0.4 m away looking at it."""
+    vertices = [(0.0, 0.0, radius)]
+    for ring in range(1, rings):
+        polar = math.pi * ring / rings
+        for segment in range(segments):
+            azimuth = 2 * math.pi * segment / segments
+            vertices.append(
+                (
+                    radius * math.sin(polar) * math.cos(azimuth),
+                    radius * math.sin(polar) * math.sin(azimuth),
+                    radius * math.cos(polar),
+                )
+            )
+    vertices.append((0.0, 0.0, -radius))
+    faces = []
+    last = len(vertices) - 1
+    for segment in range(segments):
+        nxt = (segment + 1) % segments
+        faces.append((0, 1 + segment, 1 + nxt))
+        bottom = 1 + (rings - 2) * segments
+        faces.append((last, bottom + nxt, bottom + segment))
+    for ring in range(rings - 2):
+        for segment in range(segments):
+            nxt = (segment + 1) % segments
+            a, b = 1 + ring * segments + segment, 1 + ring * segments + nxt
+            c, d = a + segments, b + segments
+            faces += [(a, c, b), (b, c, d)]
+    vertex_text = " ".join(f"{v:.6f}" for vertex in vertices for v in vertex)
+    face_text = " ".join(str(i) for face in faces for i in face)
+    return f"""<mujoco>
+  <asset><mesh name="sphere" vertex="{vertex_text}" face="{face_text}"/></asset>
+  <worldbody>
+    <geom name="table" type="box" size="1 1 0.02" pos="0.5 0 -0.02"/>
+    <body name="object" pos="0.5 0 {radius:.6f}"><geom type="mesh" mesh="sphere"/></body>
+    <camera name="view" pos="0.5 -0.283 0.283" xyaxes="1 0 0 0 0.707 0.707" fovy="58"/>
+  </worldbody>
+</mujoco>"""
+
+
+def _best(function: Callable[[], object], repeats: int) -> float:
+    best = math.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def _alternate(sides: dict[str, Callable[[], object]], rounds: int, repeats: int) -> dict:
+    """Each side's fastest call (seconds), the sides alternating round by round."""
+    best = {name: math.inf for name in sides}
+    for round_ in range(rounds):
+        order = list(sides) if round_ % 2 == 0 else list(reversed(sides))
+        for name in order:
+            best[name] = min(best[name], _best(sides[name], repeats))
+    return best
+
+
+def reference_cast(resolution: int = RESOLUTION):
+    """A call that casts one image of the reference scene with MuJoCo (its C cost)."""
+    model = mujoco.MjModel.from_xml_string(reference_scene_xml())
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    camera = model.camera("view").id
+    fovy = math.radians(float(model.cam_fovy[camera]))
+    half = math.tan(fovy / 2)
+    pixels = (np.arange(resolution) + 0.5) / resolution * 2 - 1
+    u, v = np.meshgrid(pixels * half, -pixels * half)
+    directions_camera = np.stack([u, v, -np.ones_like(u)], axis=-1).reshape(-1, 3)
+    rotation = data.cam_xmat[camera].reshape(3, 3)
+    directions = np.ascontiguousarray(directions_camera @ rotation.T).ravel()
+    origin = data.cam_xpos[camera].copy()
+    count = resolution * resolution
+    geomid = np.zeros(count, dtype=np.int32)
+    dist = np.zeros(count)
+
+    def cast() -> np.ndarray:
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_multiRay(
+            model, data, origin, directions, None, 1, -1, geomid, dist, None, count, 10.0
+        )
+        return dist
+
+    image = cast()
+    assert (image > 0).mean() > 0.9, "the reference camera must see the table and the sphere"
+    return cast
+
+
+def prepare_variants(env) -> None:
+    """Build every object variant's coverage grid and stand-ins now (an env builds them at a
+    variant's first episode), so that no timed reset pays for one."""
+    scene = env.unwrapped.scene
+    for name in env.unwrapped.object_names:
+        for scale in env.unwrapped.scales:
+            scene.tracker(name, scale)
+            scene.stand_ins(name, scale)
+
+
+def _recorded_steps(env, steps: int, seed: int) -> tuple[list, float]:
+    """(step times in s, reset seconds per reset) of seeded random actions."""
+    env.action_space.seed(seed)
+    env.reset(seed=seed)
+    step_times, reset_times = [], []
+    for _ in range(steps):
+        action = env.action_space.sample()
+        start = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(action)
+        step_times.append(time.perf_counter() - start)
+        if terminated or truncated:
+            start = time.perf_counter()
+            env.reset()
+            reset_times.append(time.perf_counter() - start)
+    return step_times, float(np.median(reset_times)) if reset_times else 0.0
+
+
+def view_step(steps: int, rounds: int) -> dict:
+    """A view step's median time, against the reference cast, in alternating rounds."""
+    import gymnasium as gym
+
+    import liuxing_envs  # noqa: F401  (registers the ids)
+
+    env = gym.make(ENV_ID)
+    cast = reference_cast()
+    prepare_variants(env)
+    _recorded_steps(env, 40, seed=0)  # the kernels' loading
+    step_medians, reset_medians, reference = [], [], math.inf
+    for round_ in range(rounds):
+        reference = min(reference, _best(cast, 200))
+        times, reset = _recorded_steps(env, steps, seed=round_ + 1)
+        step_medians.append(float(np.median(times)))
+        reset_medians.append(reset)
+    env.close()
+    step = min(step_medians)
+    return {
+        "reference_ms": reference * 1e3,
+        "step_ms": step * 1e3,
+        "reset_ms": min(reset_medians) * 1e3,
+        "step_to_reference": step / reference,
+    }
+
+
+def vector_env(sizes: tuple[int, ...], steps: int, rounds: int) -> list[dict]:
+    """Per scene-step, the task's own vector env against SyncVectorEnv (same-step resets)."""
+    import gymnasium as gym
+    from gymnasium.vector import AutoresetMode
+
+    import liuxing_envs  # noqa: F401  (registers the ids)
+
+    rows = []
+    for size in sizes:
+        envs = {
+            "batched": gym.make_vec(ENV_ID, size),
+            "sync": gym.make_vec(
+                ENV_ID,
+                size,
+                vectorization_mode="sync",
+                vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP},
+            ),
+        }
+        rng = np.random.default_rng(0)
+        actions = rng.uniform(-1, 1, (steps, size, 3))
+        for env in (*envs["batched"].envs, *envs["sync"].envs):
+            prepare_variants(env)
+        for venv in envs.values():
+            venv.reset(seed=0)
+            for action in actions[: max(8, steps // 4)]:
+                venv.step(action)
+
+        def runner(venv, batches=actions):
+            def run():
+                for action in batches:
+                    venv.step(action)
+
+            return run
+
+        best = _alternate({name: runner(venv) for name, venv in envs.items()}, rounds, 1)
+        for venv in envs.values():
+            venv.close()
+        per_scene = {name: seconds / (steps * size) * 1e3 for name, seconds in best.items()}
+        rows.append(
+            {
+                "num_envs": size,
+                "batched_ms_per_scene_step": per_scene["batched"],
+                "sync_ms_per_scene_step": per_scene["sync"],
+                "sync_to_batched": per_scene["sync"] / per_scene["batched"],
+            }
+        )
+    return rows
+
+
+def kernel_ratios(rounds: int) -> list[dict]:
+    """Each compiled kernel against its reference on inputs recorded from seeded steps."""
+    import gymnasium as gym
+
+    import liuxing_envs  # noqa: F401  (registers the ids)
+    from liuxing_envs.perception.coverage import CoverageTracker
+    from liuxing_envs.sim.camera import DepthCamera
+    from liuxing_envs.sim.scene import WRIST_CAMERA
+    from liuxing_envs.sim.viewpoints import look_at
+
+    env = gym.make(ENV_ID).unwrapped
+    env.reset(seed=0)
+    env.action_space.seed(0)
+    clouds, poses, eyes = [], [], []
+    for _ in range(24):
+        before = env.map.points().shape[0]
+        _, _, terminated, truncated, info = env.step(env.action_space.sample())
+        clouds.append(env.placed.to_object(env.map.points()[before:]))
+        poses.append(env.arm.qpos.copy())
+        eyes.append(env.camera.pose(env.data)[0])
+        if terminated or truncated:
+            break
+    rows = []
+
+    tracker = env.coverage
+    trackers = {
+        method: CoverageTracker(tracker.samples, tracker.epsilon, tracker.observable, method=method)
+        for method in ("grid", "compiled")
+    }
+
+    def scan(coverage):
+        def run():
+            coverage.reset()
+            for points in clouds:
+                coverage.update(points)
+
+        return run
+
+    best = _alternate({name: scan(t) for name, t in trackers.items()}, rounds, 3)
+    rows.append(_ratio("coverage update", best["grid"], best["compiled"], len(clouds)))
+
+    scene, placed = env.scene, env.placed
+    stand_ins = scene.stand_ins(placed.name, placed.scale)
+    cameras = {
+        name: DepthCamera(scene.model, WRIST_CAMERA, env.intrinsics, backend=name)
+        for name in ("multiray", "raycast")
+    }
+
+    def render(camera):
+        def run():
+            for qpos in poses:
+                scene.arm.set_qpos(qpos)
+                camera.render(scene.data, scene=stand_ins.ray_scene(scene.data, placed, camera))
+
+        return run
+
+    best = _alternate({name: render(c) for name, c in cameras.items()}, rounds, 3)
+    rows.append(_ratio("depth image 64x64", best["multiray"], best["raycast"], len(poses)))
+    for camera in cameras.values():
+        camera.close()
+
+    ik, center = env.arm.ik, env.center
+
+    def solve(compiled: bool):
+        def run():
+            ik.compiled = compiled
+            for eye in eyes:
+                env.arm.solve_ik(eye, look_at(eye, center), roll_free=True, check_collisions=False)
+
+        return run
+
+    best = _alternate({"numpy": solve(False), "compiled": solve(True)}, rounds, 3)
+    ik.compiled = True
+    rows.append(_ratio("roll-free IK (24 rolls)", best["numpy"], best["compiled"], len(eyes)))
+    env.close()
+    return rows
+
+
+def _ratio(name: str, reference_s: float, compiled_s: float, calls: int) -> dict:
+    return {
+        "kernel": name,
+        "reference_ms": reference_s / calls * 1e3,
+        "compiled_ms": compiled_s / calls * 1e3,
+        "speedup": reference_s / compiled_s,
+    }
+
+
+_FIRST_MAKE = (
+    "import time; start = time.perf_counter(); import gymnasium as gym, liuxing_envs; "
+    f"gym.make({ENV_ID!r}); print(time.perf_counter() - start)"
+)
+
+
+def first_make(repeats: int = 3) -> dict:
+    """Seconds from a fresh interpreter to a made env (caches warm: one make first)."""
+    subprocess.run([sys.executable, "-c", _FIRST_MAKE], check=True, capture_output=True)
+    seconds = []
+    for _ in range(repeats):
+        done = subprocess.run(
+            [sys.executable, "-c", _FIRST_MAKE], check=True, capture_output=True, text=True
+        )
+        seconds.append(float(done.stdout.split()[-1]))
+    return {"median_s": float(np.median(seconds)), "min_s": min(seconds), "max_s": max(seconds)}
