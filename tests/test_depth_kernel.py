@@ -198,3 +198,30 @@ def test_without_numba_raycast_is_cast_by_mj_multiray_and_the_kernel_names_it(mo
     camera_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "probe")
     with pytest.raises(ImportError, match=r"numba.*depth_backend='multiray'"):
         CompiledBackend(model, camera_id, CameraIntrinsics(), (0, 1, 2))
+
+
+@pytest.mark.parametrize("obs_mode", ["depth", "rgbd"])
+def test_instrument_grasp_images_are_the_same_from_the_kernel_and_mj_multiray(obs_mode):
+    # The gripper's boxes and the instruments' meshes, seen from the wrist while it moves.
+    import gymnasium as gym
+
+    frames, used = {}, {}
+    for backend in ("multiray", "raycast"):
+        env = gym.make("InstrumentGrasp-v1", obs_mode=obs_mode, depth_backend=backend)
+        env.action_space.seed(0)
+        images = []
+        for episode in range(2):
+            observation, _ = env.reset(seed=episode)
+            images.append(observation["depth"])
+            for _ in range(40):
+                observation, _, terminated, truncated, _ = env.step(env.action_space.sample())
+                images.append(observation["depth"])
+                if terminated or truncated:
+                    break
+        grasp = env.unwrapped
+        used[backend] = grasp.world.camera(grasp.intrinsics, backend).backend
+        frames[backend] = np.stack(images)
+        env.close()
+    assert used == {"multiray": "multiray", "raycast": "raycast"}
+    assert frames["raycast"].any()
+    np.testing.assert_array_equal(frames["raycast"], frames["multiray"])

@@ -10,13 +10,18 @@ Each ray from the camera to a surface point is clipped to the cube and sampled a
 most half a cell, stopping half a cell short of the surface, and every sampled cell is marked
 seen. Rays without a return (no surface within range) carve nothing: in this suite they are
 rare (the table is behind the object) and their length is unknown. All rays of a view are
-handled in one numpy pass.
+handled in one numpy pass, or, with ``compiled`` (the default where numba is installed), the
+ray's entry and exit and the sampling in a compiled loop
+(:func:`liuxing_envs.kernels.fusion.carve`) that marks the same cells: numpy still computes
+the rays and their lengths (an ``einsum``), the kernel repeats the rest operation for
+operation.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.perception.fusion import MAX_GRID_RESOLUTION, checked_cube
 from liuxing_envs.perception.pointcloud import as_points
 from liuxing_envs.validation import require_int
@@ -36,11 +41,21 @@ _SAMPLES_PER_CELL = 2
 class FreeSpaceGrid:
     """Which cells of a cube (edge ``size`` m around ``center``, ``resolution`` cells per axis,
     indexed [x, y, z] from the low corner) some ray has crossed. Call :meth:`reset` with the
-    cube before the first :meth:`carve` of an episode."""
+    cube before the first :meth:`carve` of an episode. ``compiled`` (default: where numba is
+    installed; the attribute may be changed at any time) carves with the compiled kernel,
+    which marks the same cells as the numpy code."""
 
-    def __init__(self, resolution: int, ray_stride: int = DEFAULT_RAY_STRIDE) -> None:
+    def __init__(
+        self, resolution: int, ray_stride: int = DEFAULT_RAY_STRIDE, *, compiled: bool | None = None
+    ) -> None:
         require_int("resolution", resolution, 1, MAX_GRID_RESOLUTION)
         require_int("ray_stride", ray_stride, 1, 2**31 - 1)
+        if compiled is None:
+            compiled = kernels.available()
+        elif compiled and not kernels.available():
+            raise ValueError("compiled=True needs numba, which is not installed")
+        #: Whether :meth:`carve` runs the compiled kernel.
+        self.compiled = bool(compiled)
         self.resolution = int(resolution)
         self.ray_stride = int(ray_stride)
         self._seen = np.zeros(self.resolution**3, dtype=bool)
@@ -67,6 +82,11 @@ class FreeSpaceGrid:
         start = (origin - self._lower) / self._cell
         delta = (points - self._lower) / self._cell - start
         length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
+        if self.compiled:
+            from liuxing_envs.kernels.fusion import carve
+
+            carve(start, delta, length, resolution, float(_SAMPLES_PER_CELL), self._seen)
+            return
         with np.errstate(divide="ignore", invalid="ignore"):
             inverse = 1.0 / delta
             bound_low = -start * inverse

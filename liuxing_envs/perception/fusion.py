@@ -24,6 +24,7 @@ from typing import Literal
 
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.perception.pointcloud import as_points, box_mask_t
 from liuxing_envs.validation import require_int
 
@@ -92,6 +93,11 @@ class VoxelMap:
     representative
         The point kept per voxel: ``"mean"`` (centroid of every point fused into it, which
         averages sensor noise) or ``"first"`` (the first point observed in it, unaltered).
+    compiled
+        Fuse and mark occupancy grids with the compiled kernels of
+        :mod:`liuxing_envs.kernels.fusion` (the same keys, points, counts and grids as the
+        numpy code, bit for bit). Default: where numba is installed. The attribute of the
+        same name may be changed between calls.
     """
 
     def __init__(
@@ -101,6 +107,7 @@ class VoxelMap:
         upper=DEFAULT_UPPER,
         *,
         representative: Representative = "mean",
+        compiled: bool | None = None,
     ) -> None:
         voxel_size = float(voxel_size)
         if not np.isfinite(voxel_size) or voxel_size <= 0:
@@ -120,6 +127,12 @@ class VoxelMap:
         self.upper = upper
         self.dims = dims
         self.representative: Representative = representative
+        if compiled is None:
+            compiled = kernels.available()
+        elif compiled and not kernels.available():
+            raise ValueError("compiled=True needs numba, which is not installed")
+        #: Whether :meth:`fuse` and :meth:`occupancy_grid` run the compiled kernels.
+        self.compiled = bool(compiled)
         self._inv_size = 1.0 / voxel_size
         self._strides = np.array([dims[1] * dims[2], dims[2], 1], dtype=np.int64)
         self._last = dims - 1
@@ -227,6 +240,10 @@ class VoxelMap:
         already-occupied voxels returns 0 (with ``representative="mean"`` they still move the
         voxels' centroids).
         """
+        if self.compiled:
+            points = np.ascontiguousarray(as_points(points))
+            if self._key_bits + int(len(points)).bit_length() < 63:
+                return self._fuse_compiled(points)
         pt = self._crop_t(points)
         n = pt.shape[1]
         if n == 0:
@@ -296,18 +313,48 @@ class VoxelMap:
         self._points_cache = None
         return int(k)
 
+    def _fuse_compiled(self, points: np.ndarray) -> int:
+        """:meth:`fuse` of C-ordered ``(N, 3)`` float64 points by the compiled kernel."""
+        from liuxing_envs.kernels.fusion import fuse
+
+        m = self._size
+        if m + len(points) > self._slot_keys.size:
+            self._grow(m + len(points))
+        k, self._sorted_keys, self._sorted_slots = fuse(
+            points,
+            self.lower,
+            self.upper,
+            self._inv_size,
+            self._last,
+            self._strides,
+            self.representative == "mean",
+            self._sorted_keys,
+            self._sorted_slots,
+            self._slot_keys,
+            self._values,
+            self._counts,
+            m,
+        )
+        self._size = m + k
+        self._points_cache = None
+        return int(k)
+
+    def _grow(self, needed: int) -> None:
+        # Doubling keeps appends amortised O(k) however large the map grows.
+        m = self._size
+        capacity = max(2 * self._slot_keys.size, needed, _MIN_CAPACITY)
+        slot_keys = np.empty(capacity, dtype=np.int64)
+        stored = np.empty((3, capacity), dtype=np.float64)
+        counts = np.empty(capacity, dtype=np.int64)
+        slot_keys[:m] = self._slot_keys[:m]
+        stored[:, :m] = self._values[:, :m]
+        counts[:m] = self._counts[:m]
+        self._slot_keys, self._values, self._counts = slot_keys, stored, counts
+
     def _append(self, keys: np.ndarray, values: np.ndarray, counts: np.ndarray) -> None:
         m, k = self._size, keys.size
         if m + k > self._slot_keys.size:
-            # Doubling keeps appends amortised O(k) however large the map grows.
-            capacity = max(2 * self._slot_keys.size, m + k, _MIN_CAPACITY)
-            slot_keys = np.empty(capacity, dtype=np.int64)
-            stored = np.empty((3, capacity), dtype=np.float64)
-            counts_ = np.empty(capacity, dtype=np.int64)
-            slot_keys[:m] = self._slot_keys[:m]
-            stored[:, :m] = self._values[:, :m]
-            counts_[:m] = self._counts[:m]
-            self._slot_keys, self._values, self._counts = slot_keys, stored, counts_
+            self._grow(m + k)
         self._slot_keys[m : m + k] = keys
         self._values[:, m : m + k] = values
         self._counts[m : m + k] = counts
@@ -376,6 +423,11 @@ class VoxelMap:
         # than per-axis 1-D ones, and divmod for quotient and remainder in one pass.
         scale = self.voxel_size * resolution / size
         offset = (self.lower - (center - 0.5 * size)) * (resolution / size) + 0.5 * scale
+        if self.compiled:
+            from liuxing_envs.kernels.fusion import mark_cells
+
+            mark_cells(grid, keys, self.dims[1], self.dims[2], scale, offset, resolution)
+            return
         index = np.empty((3, keys.size), dtype=np.int64)
         np.divmod(keys, self.dims[2], out=(index[1], index[2]))  # key // dims[2], k
         np.divmod(index[1], self.dims[1], out=(index[0], index[1]))  # i, j

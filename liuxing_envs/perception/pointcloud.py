@@ -74,6 +74,12 @@ def _ray_key(intrinsics: CameraIntrinsics, normalize: str) -> tuple:
     )
 
 
+def camera_rays_t(intrinsics: CameraIntrinsics) -> np.ndarray:
+    """The z-normalised rays of :func:`camera_rays`, coordinate-major ``(3, height * width)``
+    (read-only, cached per intrinsics): what :func:`depth_to_camera_points` scales."""
+    return _cached_rays_t(*_ray_key(intrinsics, "z"))
+
+
 def camera_rays(intrinsics: CameraIntrinsics, normalize: RayNormalization = "z") -> np.ndarray:
     """Per-pixel ray directions in the MuJoCo camera frame.
 
