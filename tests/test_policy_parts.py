@@ -68,3 +68,38 @@ def test_the_evaluators_loader_applies_no_normalizer_file_to_a_policy_that_carri
     expected, _ = model.predict(normalizer.normalize_obs(observation), deterministic=True)
     acted, _ = loaded.predict(observation, deterministic=True)
     np.testing.assert_array_equal(acted, expected)  # normalised once, not twice
+
+
+def test_the_pooled_extractor_sees_occupancy_at_half_the_grid_and_depth_at_16_pixels():
+    import torch
+
+    from liuxing_envs.policy_parts import FEATURES_EXTRACTORS, PooledPerceptionExtractor
+
+    space = gym.make("ViewPlanning-v1", observe_free_space=True).observation_space
+    extractor = FEATURES_EXTRACTORS["perception_pooled"](space)
+    assert isinstance(extractor, PooledPerceptionExtractor)
+    torch.manual_seed(0)
+    observation = {key: torch.zeros((1, *sub.shape)) for key, sub in space.spaces.items()}
+
+    def features(**changes):
+        with torch.no_grad():
+            return extractor({**observation, **changes})
+
+    def cube(*cells):
+        grid = torch.zeros((1, 16, 16, 16))
+        for cell in cells:
+            grid[(0, *cell)] = 1.0
+        return grid.reshape(1, -1)
+
+    # A cell occupied anywhere in its 2x2x2 block reads alike; in the next block it does not.
+    assert torch.equal(features(map=cube((4, 6, 8))), features(map=cube((5, 7, 9))))
+    assert not torch.equal(features(map=cube((4, 6, 8))), features(map=cube((6, 6, 8))))
+    # Free space is the map's second channel, pooled alike.
+    assert not torch.equal(features(free_space=cube((4, 6, 8))), features())
+    # Depth is averaged over 4x4 pixel blocks: moving a return within its block changes
+    # nothing, and the image counts.
+    image = torch.zeros((1, 1, 64, 64))
+    moved = image.clone()
+    image[0, 0, 8, 12], moved[0, 0, 11, 15] = 0.5, 0.5
+    assert torch.equal(features(depth=image), features(depth=moved))
+    assert not torch.equal(features(depth=image), features())
