@@ -8,11 +8,13 @@ Every check poses a private scratch data (the arm's, or a smaller stand-in scene
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.sim.arm_model import (
     ArmPart,
     arm_geom_mask,
@@ -41,6 +43,15 @@ PATH_CHECK_STEP = 0.02  # m
 JOINT_LEVER_ARMS = np.array([1.20, 1.20, 0.75, 0.33, 0.29, 0.15])
 #: Contacts shallower than this are touching, not colliding (MuJoCo reports dist <= 0).
 PENETRATION_TOLERANCE = 1e-4  # m
+#: How far apart every pair of geoms that MuJoCo would test must be for a waypoint to be
+#: proven free without MuJoCo (:mod:`liuxing_envs.kernels.path_proof`): ten times
+#: PENETRATION_TOLERANCE and a thousand times MuJoCo's default ``ccd_tolerance``.
+FREE_MARGIN = 1e-3  # m
+#: How deep a part turning about its own axis of symmetry (the shoulder on the arm's base)
+#: may sink into a fixed one along that axis, the same at every waypoint, for the proof still
+#: to hold: flush parts touch; a hundredth of PENETRATION_TOLERANCE.
+FLUSH_TOLERANCE = 1e-6  # m
+_FILTERPARENT = int(mujoco.mjtDisableBit.mjDSBL_FILTERPARENT)
 
 
 @dataclass(frozen=True)
@@ -68,6 +79,16 @@ class CollisionScene:
         if site not in self.site_ids:
             self.site_ids[site] = require_id(self.model, mujoco.mjtObj.mjOBJ_SITE, site)
         return self.site_ids[site]
+
+    @cached_property
+    def path_proof(self):
+        """This scene's :class:`~liuxing_envs.kernels.path_proof.PathProof` (imports numba)."""
+        from liuxing_envs.kernels.path_proof import PathProof
+
+        qpos_at = self.qpos_at
+        if isinstance(qpos_at, slice):
+            qpos_at = np.arange(qpos_at.start, qpos_at.stop)
+        return PathProof(self.model, self.data, qpos_at, self.is_arm_geom)
 
 
 @dataclass(frozen=True)
@@ -100,11 +121,18 @@ class ArmCollisions(ArmPart):
     """The collision checks of an :class:`~liuxing_envs.sim.arm.Arm`, in its scratch data or
     in a collision scene chosen with :meth:`use_collision_scene`.
 
-    ``is_arm_geom`` marks the arm's geoms in the arm's (live) model.
+    ``is_arm_geom`` marks the arm's geoms in the arm's (live) model. ``prove_free`` (default:
+    where numba is installed; an attribute too) lets :meth:`check_path` skip the waypoints
+    that a compiled distance bound proves free (:mod:`liuxing_envs.kernels.path_proof`):
+    the others go to MuJoCo as before, so every result is the same either way.
     """
 
-    def __init__(self, arm: Arm, is_arm_geom: np.ndarray) -> None:
+    def __init__(
+        self, arm: Arm, is_arm_geom: np.ndarray, *, prove_free: bool | None = None
+    ) -> None:
         super().__init__(arm)
+        #: Whether :meth:`check_path` skips the waypoints proven free without MuJoCo.
+        self.prove_free = kernels.available() if prove_free is None else bool(prove_free)
         #: The scene of the live model, posed in the arm's scratch data.
         self.live_scene = CollisionScene(arm.model, arm.scratch, arm.qpos_at, is_arm_geom)
         #: The scene the checks run in now.
@@ -158,28 +186,51 @@ class ArmCollisions(ArmPart):
         return bool(self.collisions(qpos))
 
     def check_path(self, q_from: np.ndarray, q_to: np.ndarray) -> PathCheck:
-        """Collision-check the straight joint-space path from ``q_from`` to ``q_to``."""
+        """Collision-check the straight joint-space path from ``q_from`` to ``q_to``.
+
+        With :attr:`prove_free`, MuJoCo checks only the waypoints that the distance bound
+        does not prove free, in order: the first colliding waypoint and its contacts are
+        MuJoCo's, as are the data's state afterwards (posed and collided at the last waypoint
+        checked, or at the goal), so the result is the same as without it.
+        """
         q_from, q_to = finite_qpos(q_from, "q_from"), finite_qpos(q_to, "q_to")
         scene = self.scene
         m, d = scene.model, scene.data
         waypoints = self.waypoints(q_from, q_to)
-        last_free = q_from.copy()
-        self.posed(last_free)  # the world (objects) is copied once per path
+        count = len(waypoints)
+        start = q_from.copy()
+        self.posed(start)  # the world (objects) is copied once per path
+        checked = self._unproven(scene, waypoints) if self.prove_free else range(count)
         # The hot loop of planning (dozens of waypoints per path): locals, and the contact
         # filter only runs when MuJoCo found any contact at all.
         qpos, qpos_at = d.qpos, scene.qpos_at
         kinematics, collision = mujoco.mj_kinematics, mujoco.mj_collision
-        for k, q in enumerate(waypoints):
-            qpos[qpos_at] = q
+        k = -1
+        for k in checked:
+            qpos[qpos_at] = waypoints[k]
             kinematics(m, d)
             collision(m, d)
             if d.ncon:
                 contacts = arm_contacts(d, scene)
                 if contacts:
-                    fraction = k / len(waypoints)
-                    return PathCheck(False, last_free, fraction, contacts)
-            last_free = q
-        return PathCheck(True, last_free, 1.0, ())
+                    last_free = waypoints[k - 1] if k else start
+                    return PathCheck(False, last_free, k / count, contacts)
+        if k != count - 1:  # the goal was proven free: leave the data as MuJoCo's loop does
+            qpos[qpos_at] = waypoints[-1]
+            kinematics(m, d)
+            collision(m, d)
+        return PathCheck(True, waypoints[-1], 1.0, ())
+
+    def _unproven(self, scene: CollisionScene, waypoints: np.ndarray) -> list[int]:
+        """The indices of the waypoints not proven free by :data:`FREE_MARGIN`, the scene's
+        data posed at the path's start."""
+        return scene.path_proof.unproven(
+            waypoints,
+            FREE_MARGIN,
+            FLUSH_TOLERANCE,
+            mujoco.get_mjcb_contactfilter() is None,  # a callback replaces the bitmask
+            not scene.model.opt.disableflags & _FILTERPARENT,
+        )
 
     def plan_path(
         self, goal: np.ndarray, *, via: np.ndarray | None = HOME_QPOS
