@@ -18,6 +18,7 @@ from liuxing_envs.sim.viewpoints import sphere_viewpoint
 
 pytest.importorskip("numba")
 from liuxing_envs.kernels.ik import nearest_solutions  # noqa: E402
+from tests.same_bits import assert_same_bits, assert_same_values
 
 TABLE_POINT = np.array([0.5, 0.0, 0.0])
 #: Site poses per kind in the random comparison, each tried at IK_ROLL_SAMPLES rolls.
@@ -30,13 +31,6 @@ def arm():
     data = mujoco.MjData(model)
     reset_to_home(model, data)
     return Arm(model, data)
-
-
-def assert_same_bits(got, expected):
-    got, expected = np.asarray(got), np.asarray(expected)
-    assert got.shape == expected.shape and got.dtype == expected.dtype
-    np.testing.assert_array_equal(got, expected)
-    assert got.tobytes() == expected.tobytes()  # the signs of zeros too
 
 
 def rolls(pose, count=IK_ROLL_SAMPLES):
@@ -193,22 +187,6 @@ def test_solve_ik_answers_the_same_with_the_kernel_on_and_off(arm):
     finally:
         arm.ik.compiled = kernels.available()
     assert answered == 120 and 20 < succeeded < 120
-
-
-def assert_same_values(got, expected, where="info"):
-    if isinstance(expected, dict):
-        assert isinstance(got, dict) and sorted(got) == sorted(expected), where
-        for key in expected:
-            assert_same_values(got[key], expected[key], f"{where}[{key!r}]")
-    elif isinstance(expected, (list, tuple)):
-        assert type(got) is type(expected) and len(got) == len(expected), where
-        for index, (a, b) in enumerate(zip(got, expected, strict=True)):
-            assert_same_values(a, b, f"{where}[{index}]")
-    elif isinstance(expected, (np.ndarray, np.generic, float, int, bool)):
-        assert type(got) is type(expected), where
-        assert_same_bits(got, expected)
-    else:
-        assert got == expected, where
 
 
 def test_view_planning_episodes_are_the_same_with_the_kernel_on_and_off():

@@ -50,29 +50,33 @@ class ForceMonitor:
         model, data, gripper = world.model, world.data, world.gripper
         # The pads' peaks as Python floats: this loop runs once per force sample (five times a
         # step by default), and numpy's per-call overhead on 2-vectors cost more than the
-        # bookkeeping's arithmetic.
+        # bookkeeping's arithmetic; for the same reason the methods and settings it calls are
+        # looked up once (``mujoco.mj_step`` once per call: a benchmark wraps it).
+        forces, impact_force = gripper.fingertip_force_values, world.impact_force
+        step, options, substeps = mujoco.mj_step, model.opt, self.substeps
+        hard_limit, hard_impact_limit = self.hard_limit, self.hard_impact_limit
         peak_left = peak_right = impact_peak = 0.0
         stopped = False
-        left, right = gripper.fingertip_forces().tolist()
+        left, right = forces()
         divergences = divergence_count(data)
-        for start in range(0, self.substeps, FORCE_SAMPLE_SUBSTEPS):
+        for start in range(0, substeps, FORCE_SAMPLE_SUBSTEPS):
             # Noslip iterations stop a held instrument creeping in the pads; they cost a third
             # of a physics step, so they run only while a pad touches something.
-            model.opt.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
-            mujoco.mj_step(model, data, nstep=min(FORCE_SAMPLE_SUBSTEPS, self.substeps - start))
-            left, right = gripper.fingertip_forces().tolist()
+            options.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
+            step(model, data, nstep=min(FORCE_SAMPLE_SUBSTEPS, substeps - start))
+            left, right = forces()
             peak_left, peak_right = max(peak_left, left), max(peak_right, right)
-            impact_peak = max(impact_peak, world.impact_force())
-            if max(peak_left, peak_right) > self.hard_limit or impact_peak > self.hard_impact_limit:
+            impact_peak = max(impact_peak, impact_force())
+            if max(peak_left, peak_right) > hard_limit or impact_peak > hard_impact_limit:
                 # Protective stop: hold the arm and the fingers where they are and end the step
                 # (and the episode) here.
                 world.set_arm_ctrl(world.arm.qpos)
                 gripper.command(gripper.opening())
                 stopped = True
-                mujoco.mj_step(model, data, nstep=FORCE_SAMPLE_SUBSTEPS)
-                left, right = gripper.fingertip_forces().tolist()
+                step(model, data, nstep=FORCE_SAMPLE_SUBSTEPS)
+                left, right = forces()
                 peak_left, peak_right = max(peak_left, left), max(peak_right, right)
-                impact_peak = max(impact_peak, world.impact_force())
+                impact_peak = max(impact_peak, impact_force())
                 break
         # Checked once per control step: after a divergence MuJoCo's reset state is finite,
         # so the loop above runs on harmlessly, and its figures are discarded by the caller.

@@ -79,9 +79,12 @@ class ArmIK(ArmPart):
 
     ``compiled``: whether the roll-free closed form (a camera's view, every sampled roll at
     once) runs in the compiled kernel (:mod:`liuxing_envs.kernels.ik`) or in numpy
-    (:func:`~liuxing_envs.sim.ur_ik.ur_ik` and :meth:`nearest_first`). Both give the same
-    candidates bit for bit; None (the default) picks the kernel where numba is installed. The
-    attribute of that name may be set later (a test compares the two).
+    (:func:`~liuxing_envs.sim.ur_ik.ur_ik` and :meth:`nearest_first`), and the closed form of
+    one pose (a controller's target, :meth:`closed_form_nearest`) in its kernel
+    (:mod:`liuxing_envs.kernels.one_pose_ik`) or on Python floats
+    (:func:`~liuxing_envs.sim.ur_ik.solutions_of_one` and :meth:`nearest_first_of_few`). Each
+    pair gives the same candidates bit for bit; None (the default) picks the kernels where
+    numba is installed. The attribute of that name may be set later (tests compare the two).
     """
 
     #: See the class docstring (a class default: copies pickled without it use numpy).
@@ -237,7 +240,7 @@ class ArmIK(ArmPart):
                 f"the closed-form IK needs a site fixed to the last link, not {site!r}"
             )
         ordered = self._one_pose_nearest_first(position, rotation, flange_in_site, reference)
-        return np.array(ordered[0]) if ordered else None
+        return np.array(ordered[0]) if len(ordered) else None
 
     def nearest_first(self, candidates: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """IK solutions (rows) shifted by whole turns towards ``reference`` where that stays
@@ -353,8 +356,27 @@ class ArmIK(ArmPart):
 
     def _one_pose_nearest_first(self, position, rotation, flange_in_site, reference):
         """The closed-form solutions for one site pose, as :meth:`nearest_first_of_few`
-        orders them."""
-        flange_in_base = self._base_inverse @ homogeneous(position, rotation) @ flange_in_site
+        orders them: lists of joint angles, or the rows of an array by the compiled kernel
+        (:mod:`liuxing_envs.kernels.one_pose_ik`, the same values bit for bit). ``rotation``
+        is a 3x3 array."""
+        # homogeneous(position, rotation), without np.eye's cost (it runs on every step).
+        site_pose = np.empty((4, 4))
+        site_pose[:3, :3] = rotation
+        site_pose[:3, 3] = position
+        site_pose[3] = _HOMOGENEOUS_ROW
+        flange_in_base = self._base_inverse @ site_pose @ flange_in_site
+        if self.compiled:
+            from liuxing_envs.kernels import one_pose_ik
+
+            arm = self._arm
+            return one_pose_ik.one_pose_nearest(
+                flange_in_base,
+                np.asarray(reference, dtype=np.float64),
+                arm.lower,
+                arm.upper,
+                IK_LIMIT_SLACK,
+                one_pose_ik.CONSTANTS,
+            )
         return self.nearest_first_of_few(solutions_of_one(flange_in_base), reference)
 
     def _ik_result(self, success, q, sid, target_p, target_r, roll_free, attempts, colliding):

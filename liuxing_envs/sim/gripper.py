@@ -68,10 +68,16 @@ class Gripper:
         self.finger_qpos = model.jnt_qposadr[joints]
         self._dof_idx = model.jnt_dofadr[joints]
         self.finger_actuators = ids("actuator", FINGER_ACTUATORS)
+        # The same two actuators as a slice where they are neighbours (the asset's order):
+        # the per-step commands write through it, which costs a third of a fancy index.
+        first = int(self.finger_actuators[0])
+        consecutive = self.finger_actuators.tolist() == [first, first + 1]
+        self._fingers = slice(first, first + 2) if consecutive else self.finger_actuators
         self._ctrl_high = model.actuator_ctrlrange[self.finger_actuators, 1].copy()
         self.pad_geoms = ids("geom", PAD_GEOMS)
         sensors = ids("sensor", PAD_TOUCH_SENSORS)
         self._touch_adr = model.sensor_adr[sensors]
+        self._left_touch, self._right_touch = self._touch_adr.tolist()
         self.max_force = float(model.actuator_forcerange[self.finger_actuators[0], 1])
         self._wrench = np.zeros(6)
 
@@ -84,7 +90,7 @@ class Gripper:
         """Set the servo target: the pad distance to close or open to (m), clipped to range."""
         # Floats, not np.clip: this runs every control step, and np.clip costs ~10 µs a call.
         half = 0.5 * min(max(float(opening), 0.0), MAX_OPENING)
-        self.data.ctrl[self.finger_actuators] = half
+        self.data.ctrl[self._fingers] = half
 
     def grip(self, force: float) -> None:
         """Force command, as an industrial gripper's force setting: each finger servos to the
@@ -93,8 +99,8 @@ class Gripper:
         fingers closing on nothing stop at the closed position without pressing the pads
         together. Needs :meth:`use_force_commands` first."""
         limit = min(abs(float(force)), self.max_force)
-        self.model.actuator_forcerange[self.finger_actuators] = (-limit, limit)
-        self.data.ctrl[self.finger_actuators] = 0.0 if force > 0.0 else 0.5 * MAX_OPENING
+        self.model.actuator_forcerange[self._fingers] = (-limit, limit)
+        self.data.ctrl[self._fingers] = 0.0 if force > 0.0 else 0.5 * MAX_OPENING
 
     def use_force_commands(self) -> None:
         """Damp the fingers for :meth:`grip` (see FORCE_COMMAND_DAMPING)."""
@@ -132,12 +138,18 @@ class Gripper:
         return True
 
     def commanded_opening(self) -> float:
-        left, right = self.data.ctrl[self.finger_actuators].tolist()
+        left, right = self.data.ctrl[self._fingers].tolist()
         return left + right
 
     def fingertip_forces(self) -> np.ndarray:
         """Normal force on the left and right pad (N), from the touch sensors."""
         return self.data.sensordata[self._touch_adr].copy()
+
+    def fingertip_force_values(self) -> tuple[float, float]:
+        """:meth:`fingertip_forces` as two Python floats (the force monitor reads them several
+        times a step; this costs a third of indexing and copying an array)."""
+        sensordata = self.data.sensordata
+        return sensordata.item(self._left_touch), sensordata.item(self._right_touch)
 
     def actuator_forces(self) -> np.ndarray:
         """Force each finger servo applies (N; negative = closing)."""

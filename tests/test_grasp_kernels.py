@@ -1,0 +1,292 @@
+"""The compiled one-pose closed-form IK (liuxing_envs.kernels.one_pose_ik) against its Python
+reference (ur_ik.solutions_of_one, then ArmIK.nearest_first_of_few): the same solutions in the
+same order, bit for bit, and InstrumentGrasp-v1 episodes that do not change when the kernel is
+switched off; and the grasp step's leaner bookkeeping against what it replaced."""
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import pytest
+
+import liuxing_envs  # noqa: F401  (registers the ids)
+from agents.grasp_baselines import PrivilegedGrasp
+from liuxing_envs import kernels
+from liuxing_envs.sim.arm import Arm
+from liuxing_envs.sim.arm_ik import IK_LIMIT_SLACK
+from liuxing_envs.sim.kinematics import DH_A, DH_D, flange_pose_in_base
+from liuxing_envs.sim.scene import WRIST_CAMERA_SITE, load_scene_model, reset_to_home
+from liuxing_envs.sim.ur_ik import solutions_of_one
+
+pytest.importorskip("numba")
+from liuxing_envs.kernels import one_pose_ik  # noqa: E402
+from tests.same_bits import assert_same_bits, assert_same_values
+
+#: Poses per kind in the random comparison.
+POSES_PER_KIND = 700
+
+
+@pytest.fixture(scope="module")
+def arm():
+    model = load_scene_model()
+    data = mujoco.MjData(model)
+    reset_to_home(model, data)
+    return Arm(model, data)
+
+
+def random_rotation(rng):
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def pose_of_kind(kind, rng, arm):
+    """A flange pose in the base frame and a reference configuration, of a hard kind."""
+    q = rng.uniform(-np.pi, np.pi, 6)
+    if kind == "limits":  # a joint at its limit: solutions a rounding error past it
+        joint = rng.integers(6)
+        q[joint] = arm.upper[joint] if rng.random() < 0.5 else arm.lower[joint]
+        q[joint] += rng.choice([0.0, 1e-12, -1e-12, 5e-10, -5e-10])
+    elif kind == "wrist singularity":  # sin(theta 5) about the 1e-6 threshold
+        q[4] = rng.choice([0.0, np.pi]) + rng.choice([1.0, -1.0]) * 10 ** rng.uniform(-8, -4)
+    elif kind == "straight elbow":  # cos(theta 3) rounds past +-1
+        q[2] = rng.choice([0.0, 1e-9, -1e-9, np.pi, -np.pi])
+    elif kind == "wrap":  # joints about +-pi, where the solutions wrap by a whole turn
+        q = rng.choice([np.pi, -np.pi], size=6) + rng.choice([0.0, 1e-15, -1e-15, 1e-9], size=6)
+    pose = flange_pose_in_base(q)
+    if kind == "wrist above shoulder":  # the wrist centre within or at d4 of the base axis
+        pose[:3, :3] = random_rotation(rng)
+        radius = DH_D[3] * rng.choice([0.0, 0.5, 1.0 - 1e-12, 1.0, 1.0 + 1e-12, 1.0 + 1e-6])
+        heading = rng.uniform(-np.pi, np.pi)
+        centre = np.array(
+            [radius * np.cos(heading), radius * np.sin(heading), rng.uniform(-0.3, 0.8)]
+        )
+        pose[:3, 3] = centre + DH_D[5] * pose[:3, 2]
+    elif kind == "out of reach":  # beyond, or at the edge of, the arm's reach
+        reach = abs(DH_A[1]) + abs(DH_A[2]) + DH_D[3] + DH_D[5]
+        pose[:3, 3] *= reach * rng.uniform(0.9, 1.5) / np.linalg.norm(pose[:3, 3])
+    elif kind == "random":  # anywhere within a metre
+        pose[:3, :3] = random_rotation(rng)
+        pose[:3, 3] = rng.uniform(-1.0, 1.0, 3)
+    elif kind == "tool down":  # a grasp controller's targets: the tool pointing down
+        yaw = rng.uniform(-np.pi, np.pi)
+        c, s = np.cos(yaw), np.sin(yaw)
+        pose[:3, :3] = [[c, s, 0.0], [s, -c, 0.0], [0.0, 0.0, -1.0]]
+        pose[:3, 3] = [rng.uniform(0.2, 0.8), rng.uniform(-0.4, 0.4), rng.uniform(-0.1, 0.5)]
+    reference = [
+        q,
+        q + rng.normal(scale=0.3, size=6) + 2 * np.pi * rng.integers(-1, 2, size=6),
+        rng.uniform(arm.lower, arm.upper),
+        np.where(rng.random(6) < 0.5, arm.lower, arm.upper),
+        q + rng.choice([np.pi, -np.pi, 3 * np.pi], size=6),  # a half-turn gap: round's ties
+    ][rng.integers(5)]
+    return pose, reference
+
+
+KINDS = (
+    "reachable",
+    "limits",
+    "wrist singularity",
+    "straight elbow",
+    "wrap",
+    "wrist above shoulder",
+    "out of reach",
+    "random",
+    "tool down",
+)
+
+
+def reference_order(arm, pose, reference):
+    """The Python path: ``nearest_first_of_few(solutions_of_one(pose))`` as an (n, 6) array."""
+    ordered = arm.ik.nearest_first_of_few(solutions_of_one(pose), reference)
+    return np.array(ordered, dtype=np.float64).reshape(len(ordered), 6)
+
+
+def kernel_order(arm, pose, reference):
+    return one_pose_ik.one_pose_nearest(
+        pose, reference, arm.lower, arm.upper, IK_LIMIT_SLACK, one_pose_ik.CONSTANTS
+    )
+
+
+def test_the_kernel_finds_the_same_solutions_bit_for_bit(arm):
+    rng = np.random.default_rng(640)
+    seen = dict.fromkeys(("solutions", "none", "partial"), 0)
+    for kind in KINDS:
+        for _ in range(POSES_PER_KIND):
+            pose, _ = pose_of_kind(kind, rng, arm)
+            expected = solutions_of_one(pose)
+            rows, angles = one_pose_ik.solutions_of_one(pose, one_pose_ik.CONSTANTS)
+            assert rows.tolist() == [row for row, _ in expected]
+            assert_same_bits(angles, np.array([a for _, a in expected]).reshape(len(expected), 6))
+            seen["solutions"] += len(expected)
+            seen["none"] += not expected
+            seen["partial"] += 0 < len(expected) < 8
+    assert seen["solutions"] > 25_000 and seen["none"] > 1000 and seen["partial"] > 1000
+
+
+@pytest.mark.parametrize("narrowed", [False, True])
+def test_the_kernel_orders_the_same_solutions_bit_for_bit(arm, narrowed):
+    lower, upper = arm.lower.copy(), arm.upper.copy()
+    if narrowed:  # limits that drop some solutions and leave others a shift inside
+        lower[0], upper[0], lower[3], upper[3] = -2.5, 4.0, -np.pi, 1.0
+    original = arm.lower, arm.upper
+    arm.lower, arm.upper = lower, upper
+    rng = np.random.default_rng(65 + narrowed)
+    seen = dict.fromkeys(("solutions", "empty", "dropped", "ties", "clipped"), 0)
+    try:
+        for kind in KINDS:
+            for _ in range(POSES_PER_KIND):
+                pose, reference = pose_of_kind(kind, rng, arm)
+                expected = reference_order(arm, pose, reference)
+                got = kernel_order(arm, pose, reference)
+                assert_same_bits(got, expected)
+                seen["solutions"] += len(got)
+                seen["empty"] += len(got) == 0
+                seen["dropped"] += len(solutions_of_one(pose)) - len(got)
+                distances = np.linalg.norm(got - reference, axis=1)
+                seen["ties"] += int((np.diff(distances) == 0).any())
+                seen["clipped"] += int(((got == lower) | (got == upper)).any())
+    finally:
+        arm.lower, arm.upper = original
+    assert seen["solutions"] > 15_000 and seen["empty"] > 1000 and seen["clipped"] > 100
+    assert seen["ties"] > 100 and (not narrowed or seen["dropped"] > 5000)
+
+
+def test_poses_that_are_not_finite_or_huge_give_what_the_reference_gives(arm):
+    rng = np.random.default_rng(3)
+    checked = 0
+    for value in (np.nan, np.inf, -np.inf, 1e300, -1e300, 1e155, 0.0):
+        for _ in range(20):
+            pose = flange_pose_in_base(rng.uniform(-np.pi, np.pi, 6))
+            entry = tuple(rng.integers(0, 3, size=2)), (rng.integers(0, 3), 3)
+            pose[entry[rng.integers(2)]] = value
+            reference = rng.uniform(arm.lower, arm.upper)
+            assert_same_bits(
+                kernel_order(arm, pose, reference), reference_order(arm, pose, reference)
+            )
+            rows, angles = one_pose_ik.solutions_of_one(pose, one_pose_ik.CONSTANTS)
+            assert rows.tolist() == [row for row, _ in solutions_of_one(pose)]
+            checked += 1
+    assert checked == 140
+
+
+def test_ik_queries_answer_the_same_with_the_kernel_on_and_off(arm):
+    """closed_form_nearest (a controller's query) and solve_ik with a fixed roll take the
+    one-pose path."""
+    assert arm.ik.compiled is kernels.available()
+    rng = np.random.default_rng(12)
+    answered = found = 0
+    try:
+        for _ in range(300):
+            q = rng.uniform(arm.lower, arm.upper)
+            posed = arm.pose_scratch(q)
+            site = WRIST_CAMERA_SITE
+            sid = arm.site_id(site)
+            position = posed.site_xpos[sid] + rng.normal(scale=0.05, size=3)
+            rotation = posed.site_xmat[sid].reshape(3, 3).copy()
+            reference = q + rng.normal(scale=0.4, size=6)
+            results = []
+            for compiled in (True, False):
+                arm.ik.compiled = compiled
+                nearest = arm.ik.closed_form_nearest(position, rotation, reference, site=site)
+                solved = arm.solve_ik(
+                    position, rotation, site=site, seed_qpos=reference, method="analytic"
+                )
+                results.append((nearest, solved))
+            (nearest, solved), (nearest_py, solved_py) = results
+            assert (nearest is None) == (nearest_py is None)
+            if nearest is not None:
+                assert_same_bits(nearest, nearest_py)
+                found += 1
+            assert_same_bits(solved.qpos, solved_py.qpos)
+            for field in ("success", "position_error", "rotation_error", "attempts"):
+                assert getattr(solved, field) == getattr(solved_py, field), field
+            answered += 1
+    finally:
+        arm.ik.compiled = kernels.available()
+    assert answered == 300 and 50 < found < 300
+
+
+def set_compiled(env, compiled):
+    for world in env.unwrapped._worlds.values():
+        world.arm.ik.compiled = compiled
+
+
+@pytest.mark.parametrize(
+    ("obs_mode", "force_limit", "seeds"),
+    [("state", None, (0, 1, 2)), ("state", 0.5, (4,)), ("depth", None, (6, 3))],
+)
+def test_grasp_episodes_are_the_same_with_the_kernel_on_and_off(obs_mode, force_limit, seeds):
+    """The privileged expert (grasps, lifts) with noise, and random actions, in two envs
+    stepped alike, one with the kernel and one without; a low force limit (and so hard limit)
+    makes the expert's grasps protective stops."""
+    kwargs = {"obs_mode": obs_mode, "instruments": ["scalpel", "tissue_forceps"]}
+    if obs_mode == "depth":
+        kwargs["resolution"] = 32
+    if force_limit is not None:
+        kwargs["force_limit"] = force_limit
+    envs = [gym.make("InstrumentGrasp-v1", **kwargs) for _ in range(2)]
+    try:
+        assert envs[0].unwrapped.world.arm.ik.compiled is kernels.available()
+        set_compiled(envs[1], False)
+        rng = np.random.default_rng(8)
+        steps = grasped = stopped = 0
+        for seed in seeds:
+            first = [env.reset(seed=seed) for env in envs]
+            assert_same_values(first[0], first[1], "reset")
+            observation = first[0][0]
+            expert = PrivilegedGrasp(envs[0]) if seed % 2 == 0 else None
+            done, step = False, 0
+            while not done and step < 200:
+                if expert is None:
+                    action = rng.uniform(-1.0, 1.0, envs[0].action_space.shape)
+                else:
+                    action, _ = expert.predict(observation)
+                    if rng.random() < 0.1:
+                        action = np.clip(action + rng.normal(scale=0.2, size=action.shape), -1, 1)
+                action = np.asarray(action, dtype=np.float32)
+                outcomes = [env.step(action) for env in envs]
+                assert_same_values(outcomes[0], outcomes[1], f"seed {seed}, step {step}")
+                observation, _, terminated, truncated, info = outcomes[0]
+                done = terminated or truncated
+                grasped += info["grasped"]
+                stopped += info["hard_limit_exceeded"]
+                step += 1
+                steps += 1
+        assert steps >= 130 * len(seeds)
+        assert grasped > 0 if force_limit is None else stopped > 0
+    finally:
+        for env in envs:
+            env.close()
+
+
+def test_the_gripper_s_float_reads_and_slice_writes_match_the_arrays():
+    env = gym.make("InstrumentGrasp-v1")
+    try:
+        env.reset(seed=0)
+        for world in env.unwrapped._worlds.values():
+            gripper = world.gripper
+            assert gripper.finger_actuators.tolist() == list(
+                range(gripper._fingers.start, gripper._fingers.stop)
+            )
+        world = env.unwrapped.world
+        gripper, data, model = world.gripper, world.data, world.model
+        rng = np.random.default_rng(0)
+        for _ in range(40):
+            env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+            values = gripper.fingertip_force_values()
+            assert all(type(value) is float for value in values)
+            assert list(values) == gripper.fingertip_forces().tolist()
+        for force in (2.0, -1.5, 0.0, 100.0):
+            gripper.grip(force)
+            limit = min(abs(force), gripper.max_force)
+            assert (
+                model.actuator_forcerange[gripper.finger_actuators].tolist()
+                == [[-limit, limit]] * 2
+            )
+            ctrl = data.ctrl[gripper.finger_actuators].tolist()
+            assert ctrl == [0.0 if force > 0.0 else 0.04] * 2
+            assert gripper.commanded_opening() == ctrl[0] + ctrl[1]
+        gripper.command(0.03)
+        assert data.ctrl[gripper.finger_actuators].tolist() == [0.015, 0.015]
+    finally:
+        env.close()
