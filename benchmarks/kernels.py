@@ -128,16 +128,6 @@ def reference_cast(resolution: int = RESOLUTION):
     return cast
 
 
-def prepare_variants(env) -> None:
-    """Build every object variant's coverage grid and stand-ins now (an env builds them at a
-    variant's first episode), so that no timed reset pays for one."""
-    scene = env.unwrapped.scene
-    for name in env.unwrapped.object_names:
-        for scale in env.unwrapped.scales:
-            scene.tracker(name, scale)
-            scene.stand_ins(name, scale)
-
-
 def _recorded_steps(env, steps: int, seed: int) -> tuple[list, float]:
     """(step times in s, reset seconds per reset) of seeded random actions."""
     env.action_space.seed(seed)
@@ -163,7 +153,7 @@ def view_step(steps: int, rounds: int) -> dict:
 
     env = gym.make(ENV_ID)
     cast = reference_cast()
-    prepare_variants(env)
+    env.unwrapped.prepare_objects()
     _recorded_steps(env, 40, seed=0)  # the kernels' loading
     step_medians, reset_medians, reference = [], [], math.inf
     for round_ in range(rounds):
@@ -202,7 +192,7 @@ def vector_env(sizes: tuple[int, ...], steps: int, rounds: int) -> list[dict]:
         rng = np.random.default_rng(0)
         actions = rng.uniform(-1, 1, (steps, size, 3))
         for env in (*envs["batched"].envs, *envs["sync"].envs):
-            prepare_variants(env)
+            env.unwrapped.prepare_objects()
         for venv in envs.values():
             venv.reset(seed=0)
             for action in actions[: max(8, steps // 4)]:

@@ -113,7 +113,11 @@ def policy_tables(report: dict, heading: str = "###") -> str:
 def _seed_spread(aggregate: dict, key: str) -> str:
     low, high = aggregate[f"{key}_seed_ci95"]
     strat_low, strat_high = aggregate[f"{key}_ci95"]
-    return f"{aggregate[key]:.3f} [{low:.3f}, {high:.3f}] [{strat_low:.3f}, {strat_high:.3f}]"
+    # "] [" would read as a Markdown reference link: the two intervals are named instead.
+    return (
+        f"{aggregate[key]:.3f} (seeds [{low:.3f}, {high:.3f}]; "
+        f"episodes [{strat_low:.3f}, {strat_high:.3f}])"
+    )
 
 
 def recipe_tables(report: dict) -> str:
@@ -145,8 +149,8 @@ def recipe_tables(report: dict) -> str:
             columns = [
                 "recipe",
                 "seeds",
-                "IQM [seeds] [stratified]",
-                "mean [seeds] [stratified]",
+                "IQM, 95% CIs",
+                "mean, 95% CIs",
                 "P(improvement) over",
             ]
             parts.append(
@@ -262,9 +266,9 @@ def results_page(report: dict, results: dict, recipes: dict | None = None) -> st
         sections += [
             "## Recipes over seeds",
             "Every seed of each recipe (`recipes/`) on the same episodes as above. 95% "
-            "intervals of the IQM and the mean over seeds: [seeds] resamples the runs, "
-            "[stratified] the episodes within each run; P(improvement) is the chance that a "
-            "run's episode beats the baseline's same episode (ties count half).",
+            'intervals of the IQM and the mean over seeds: "seeds" resamples the runs, '
+            '"episodes" the episodes within each run (stratified); P(improvement) is the '
+            "chance that a run's episode beats the baseline's same episode (ties count half).",
             recipe_tables(recipes),
         ]
     sections += ["## Speed", speed_tables(results)]

@@ -213,7 +213,9 @@ def test_a_recipe_table_shows_every_seed_and_the_spread_over_seeds():
     text = results.recipe_tables(recipes)
     for seed in (4, 0, 1):
         assert f"PPO (trained, seed {seed})" in text
-    assert "| PPO | 3 | 0.500 [0.250, 0.750] [0.250, 0.750] |" in text
+    interval = "0.500 (seeds [0.250, 0.750]; episodes [0.250, 0.750])"
+    assert f"| PPO | 3 | {interval} | {interval} |" in text
+    assert "] [" not in text  # Markdown would read it as a reference link
     assert "0.62 (four-view)" in text
 
 

@@ -164,6 +164,11 @@ class LiuxingEnv(gym.Env):
         """``step()`` once the env is open and its episode ready."""
         raise NotImplementedError
 
+    def prepare_objects(self) -> None:
+        """Build now, for every object the env can draw, what the object's first episode
+        would otherwise build (nothing, unless the env says otherwise): for measurements that
+        must not see it being built."""
+
     # ------------------------------------------------------------------ rendering, closing
     #: The overview camera's renderer (``render_mode="rgb_array"``), made on first use.
     _renderer = None

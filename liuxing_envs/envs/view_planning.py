@@ -247,6 +247,14 @@ class ViewPlanningEnv(LiuxingEnv):
             self._episode_ready = False
         return self._observation(), reward, terminated, truncated, info
 
+    def prepare_objects(self) -> None:
+        """Build every object variant's coverage grid and stand-in scenes now (each is built
+        at the variant's first episode otherwise: tens of milliseconds, once per process)."""
+        for name in self.object_names:
+            for scale in self.scales:
+                self.scene.tracker(name, scale)
+                self.scene.stand_ins(name, scale)
+
     def render(self):
         if self.render_mode != "rgb_array":
             return None
