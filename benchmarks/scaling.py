@@ -57,13 +57,15 @@ def vector_env(config: Config, kind: str, workers: int):
     if kind == "gymnasium-async":
         import liuxing_envs  # noqa: F401
 
-        return gym.make_vec(
+        envs = gym.make_vec(
             config.env_id,
             num_envs=workers,
             vectorization_mode="async",
             vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.SAME_STEP},
             **config.kwargs,
         )
+        envs.call("prepare_objects")  # as make_env does for the other kinds
+        return envs
     return _subproc_vec_env([lambda: make_env(config)] * workers)
 
 
