@@ -37,6 +37,7 @@ from liuxing_envs.sim.scene import (
     load_scene_spec,
     reset_to_home,
 )
+from liuxing_envs.sim.viewpoints import look_at_quat
 from tests.forked_child import outcome_in_forked_child
 
 # The test box: 0.10 x 0.06 x 0.08 m, yawed 30 deg, resting on the table in front of the arm.
@@ -68,18 +69,6 @@ def _box_rotation() -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _look_at_quat(eye, target) -> np.ndarray:
-    eye = np.asarray(eye, dtype=float)
-    forward = np.asarray(target, dtype=float) - eye
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.column_stack([right, up, -forward]).ravel())
-    return quat
-
-
 def _build_model(with_round_objects: bool) -> mujoco.MjModel:
     spec = load_scene_spec()
     box = spec.worldbody.add_body(
@@ -94,7 +83,7 @@ def _build_model(with_round_objects: bool) -> mujoco.MjModel:
         sphere = spec.worldbody.add_body(name="sphere", pos=SPHERE_POS)
         sphere.add_geom(name="sphere", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.035, 0, 0])
     for name, (eye, target) in EXTRA_VIEWS.items():
-        spec.worldbody.add_camera(name=name, pos=eye, quat=_look_at_quat(eye, target))
+        spec.worldbody.add_camera(name=name, pos=eye, quat=look_at_quat(eye, target))
     return spec.compile()
 
 
@@ -458,7 +447,7 @@ def test_raycast_table_shortcut_gives_the_full_cast_image():
             eye = rng.uniform([-0.4, -0.9, -0.2], [1.3, 0.9, 1.0])
             target = rng.uniform([0.2, -0.4, -0.1], [0.8, 0.5, 0.1])
             data.mocap_pos[rig] = eye
-            data.mocap_quat[rig] = _look_at_quat(eye, target)
+            data.mocap_quat[rig] = look_at_quat(eye, target)
             data.mocap_pos[objects] = BOX_POS + rng.uniform(-0.15, 0.15, 3) * [1, 1, 0]
             mujoco.mj_kinematics(model, data)
             image = camera.render(data)
@@ -595,7 +584,7 @@ def test_a_geom_touching_the_optical_centre_is_never_culled():
         for _ in range(100):
             eye = rng.uniform([0.0, -0.5, 0.3], [0.8, 0.5, 1.0])
             target = rng.uniform([0.0, -0.4, 0.0], [0.8, 0.4, 0.05])
-            data.mocap_pos[0], data.mocap_quat[0] = eye, _look_at_quat(eye, target)
+            data.mocap_pos[0], data.mocap_quat[0] = eye, look_at_quat(eye, target)
             mujoco.mj_kinematics(model, data)
             position, rotation = camera.pose(data)
             assert frustum.may_reach(model, data, housing, position, rotation)[0]
@@ -684,7 +673,7 @@ def test_embree_backend_agrees_with_raycast_and_falls_back_where_it_cannot_split
             target = BOX_POS + rng.uniform(-0.05, 0.05, 3)
             eye = target + rng.uniform([-0.5, -0.5, 0.1], [0.5, 0.5, 0.6])
             data.mocap_pos[rig] = eye
-            data.mocap_quat[rig] = _look_at_quat(eye, target)
+            data.mocap_quat[rig] = look_at_quat(eye, target)
             yaw = rng.uniform(0, np.pi)
             data.mocap_quat[solid] = [np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]
             mujoco.mj_kinematics(model, data)

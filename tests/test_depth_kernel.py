@@ -19,6 +19,7 @@ from liuxing_envs.envs.view_planning import ViewPlanningEnv  # noqa: E402
 from liuxing_envs.sim.camera import CameraIntrinsics, DepthCamera  # noqa: E402
 from liuxing_envs.sim.objects import OBJECT_SETS  # noqa: E402
 from liuxing_envs.sim.scene import ARM_BASE_BODY, HOME_QPOS, WRIST_CAMERA, load_scene_spec  # noqa: E402
+from liuxing_envs.sim.viewpoints import look_at_quat  # noqa: E402
 
 #: Small and fast env settings (one scale, few coverage samples).
 FAST = {"scales": (1.0,), "coverage_samples": 1024}
@@ -119,18 +120,6 @@ def _every_primitive_scene() -> mujoco.MjModel:
     return spec.compile()
 
 
-def _look_at_quat(eye, target) -> np.ndarray:
-    eye = np.asarray(eye, dtype=float)
-    forward = np.asarray(target, dtype=float) - eye
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    quat = np.zeros(4)
-    mujoco.mju_mat2Quat(quat, np.column_stack([right, up, -forward]).ravel())
-    return quat
-
-
 def test_compiled_images_equal_casting_every_ray_for_every_primitive_type():
     # Spheres, capsules, cylinders, ellipsoids and boxes turned every way, the table and the
     # floor, from anywhere around them (below the table top too): ~60 views.
@@ -145,7 +134,7 @@ def test_compiled_images_equal_casting_every_ray_for_every_primitive_type():
             eye = rng.uniform([-0.3, -0.9, -0.3], [1.3, 0.9, 1.0])
             target = rng.uniform([0.3, -0.2, 0.0], [0.6, 0.2, 0.1])
             data.mocap_pos[rig] = eye
-            data.mocap_quat[rig] = _look_at_quat(eye, target)
+            data.mocap_quat[rig] = look_at_quat(eye, target)
             quat = rng.normal(size=4)
             data.mocap_quat[shapes] = quat / np.linalg.norm(quat)
             data.mocap_pos[shapes] = [0.45, 0.0, 0.06] + rng.uniform(-0.1, 0.1, 3)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import mujoco
 import numpy as np
 
 WORLD_UP = (0.0, 0.0, 1.0)
@@ -45,6 +46,13 @@ def look_at(eye, target, up=WORLD_UP) -> np.ndarray:
     rx, ry, rz = rx / norm, ry / norm, rz / norm
     ix, iy, iz = _cross(rx, ry, rz, fx, fy, fz)
     return np.array([[rx, ix, -fx], [ry, iy, -fy], [rz, iz, -fz]])
+
+
+def look_at_quat(eye, target, up=WORLD_UP) -> np.ndarray:
+    """:func:`look_at` as a MuJoCo quaternion (w, x, y, z), for a camera or a mocap body."""
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.ascontiguousarray(look_at(eye, target, up)).ravel())
+    return quat
 
 
 def _cross(ax, ay, az, bx, by, bz) -> tuple[float, float, float]:
