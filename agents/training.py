@@ -510,6 +510,8 @@ def vector_keys(space: gym.spaces.Space) -> list[str]:
 #: The model attribute (saved in its zip with SB3's other attributes) holding the seconds of
 #: training behind it, across resumes.
 TRAINED_SECONDS = "liuxing_trained_seconds"
+#: Likewise the seconds of those spent in the algorithm's gradient updates.
+UPDATE_SECONDS = "liuxing_update_seconds"
 #: config.yml's settings that define a run. A resume keeps them (--resume changes only
 #: n_timesteps, device, final_episodes and torch_threads), so every saved model records them
 #: (as the attribute RUN_DEFINITION) and a resume refuses a config.yml that changed one.
@@ -569,19 +571,47 @@ class TrainingClock:
     """Seconds of training behind a run: this process's since ``learn()`` began, plus what the
     checkpoint it resumed from had behind it. The time a run spent stopped is not counted,
     nor the steps after its last checkpoint that a resume trains again, except a PPO
-    rollout a stop cut short (at most one per stop)."""
+    rollout a stop cut short (at most one per stop).
+
+    It also keeps the share of them spent in gradient updates (:class:`UpdateTimer` marks
+    them), which says whether a run is bound by its env or by its learner."""
 
     def __init__(self, model, resuming: bool) -> None:
-        before = getattr(model, TRAINED_SECONDS, 0.0) if resuming else 0.0
-        try:  # a checkpoint of older code has none: its count restarts at the resume
-            before = float(before) if is_number(before) else 0.0
-        except OverflowError:
-            before = 0.0
-        self.before = before if math.isfinite(before) and before >= 0 else 0.0
+        self.before = _saved_seconds(model, TRAINED_SECONDS) if resuming else 0.0
+        self.updates_before = _saved_seconds(model, UPDATE_SECONDS) if resuming else 0.0
         self.started = time.perf_counter()
+        self.updating = 0.0
+        self._update_started: float | None = None
 
     def seconds(self) -> float:
         return self.before + time.perf_counter() - self.started
+
+    def update_seconds(self) -> float:
+        return self.updates_before + self.updating
+
+    def update_starts(self) -> None:
+        self._update_started = time.perf_counter()
+
+    def update_ends(self) -> None:
+        if self._update_started is not None:
+            self.updating += time.perf_counter() - self._update_started
+            self._update_started = None
+
+    def stamp(self, model) -> None:
+        """Record the seconds behind ``model`` in it, for its zip."""
+        setattr(model, TRAINED_SECONDS, round(self.seconds(), 1))
+        setattr(model, UPDATE_SECONDS, round(self.update_seconds(), 1))
+
+
+def _saved_seconds(model, attribute: str) -> float:
+    """A saved model's count of seconds; 0 where a checkpoint of older code has none (its
+    count restarts at the resume) or holds no usable number."""
+    value = getattr(model, attribute, 0.0)
+    try:
+        value = float(value) if is_number(value) else 0.0
+    except OverflowError:
+        value = 0.0
+    return value if math.isfinite(value) and value >= 0 else 0.0
 
 
 def save_checkpoint(
@@ -591,7 +621,7 @@ def save_checkpoint(
     :class:`AdvanceStartLevel`, or None) under the model's step count, with ``clock``'s
     seconds of training in the model."""
     if clock is not None:
-        setattr(model, TRAINED_SECONDS, round(clock.seconds(), 1))
+        clock.stamp(model)
     steps = int(model.num_timesteps)
     paths = run_folder.checkpoint_paths(run_dir, steps)
     paths["model"].parent.mkdir(parents=True, exist_ok=True)
@@ -659,6 +689,29 @@ class RolloutBoundary(BaseCallback):
     def _on_step(self) -> bool:
         if self._every_step:
             self.steps = self.model.num_timesteps
+        return True
+
+
+class UpdateTimer(BaseCallback):
+    """Marks the gradient updates on a :class:`TrainingClock`: SB3 runs them between the end
+    of one rollout and the start of the next (or the end of training), for PPO and for SAC.
+    It goes first among the callbacks, so that the evaluations and checkpoints taken where a
+    rollout starts are not counted as updates."""
+
+    def __init__(self, clock: TrainingClock) -> None:
+        super().__init__()
+        self.clock = clock
+
+    def _on_rollout_end(self) -> None:
+        self.clock.update_starts()
+
+    def _on_rollout_start(self) -> None:
+        self.clock.update_ends()
+
+    def _on_training_end(self) -> None:
+        self.clock.update_ends()
+
+    def _on_step(self) -> bool:
         return True
 
 
@@ -1329,12 +1382,12 @@ def learn_in_run_folder(
     set up): periodic checkpoints and evaluations as ``config`` sets them, and a checkpoint
     to resume from when a signal stops the run or training fails (a lost worker, say). Returns
     the final comparison."""
+    clock = TrainingClock(model, resuming)
     boundary, stopper = RolloutBoundary(), StopWhenRequested()
-    callbacks = [boundary, stopper]
+    callbacks = [UpdateTimer(clock), boundary, stopper]
     level = level_callback(config.get("start_curriculum"), curriculum)
     if level is not None:
         callbacks.append(level)
-    clock = TrainingClock(model, resuming)
     if config["save_freq"]:
         callbacks.append(PeriodicCheckpoint(run_dir, config["save_freq"], level, clock))
     if evaluation is not None:
@@ -1393,6 +1446,7 @@ def learn_in_run_folder(
                 if isinstance(callback, PeriodicEvaluation):
                     callback.env.close()
         result = _save_trained(model, config, run_dir, level, clock)
+    print(describe_training_time(result), flush=True)
     if interrupts.requested():  # after the last step (its update, or the saving) ended
         left = _left_after_training(run_dir, config, result["timesteps"], result)
         rest = f" Run {' and '.join(left)} with: python train.py --resume {run_dir}" if left else ""
@@ -1401,6 +1455,14 @@ def learn_in_run_folder(
     if not config["final_episodes"]:
         return result
     return _final_comparison(run_dir, config, result)
+
+
+def describe_training_time(result: Mapping) -> str:
+    """The training time of a ``result.json``, with the share spent in gradient updates."""
+    seconds, updates = result["train_seconds"], result["update_seconds"]
+    share = f" ({updates / seconds:.0%} in gradient updates)" if seconds > 0 else ""
+    rate = f", {result['timesteps'] / seconds:.0f} steps/s" if seconds > 0 else ""
+    return f"trained {result['timesteps']} steps in {seconds:.0f} s{rate}{share}"
 
 
 LAST_EVALUATION, FINAL_COMPARISON = "its last evaluation", "its final comparison"
@@ -1435,8 +1497,7 @@ def _left_after_training(run_dir: Path, config: dict, steps: int, result: dict) 
 def _save_trained(model, config: dict, run_dir: Path, level, clock: TrainingClock) -> dict:
     """The final model, its checkpoint, the learning curve and result.json; returns the
     result."""
-    seconds = round(clock.seconds(), 1)
-    setattr(model, TRAINED_SECONDS, seconds)  # the final model and its checkpoint alike
+    clock.stamp(model)  # the final model and its checkpoint alike
     normalizer = model.get_vec_normalize_env()
     if normalizer is not None:
         run_folder.save_atomically(normalizer.save, run_dir / run_folder.FINAL_NORMALIZER)
@@ -1444,7 +1505,11 @@ def _save_trained(model, config: dict, run_dir: Path, level, clock: TrainingCloc
     save_checkpoint(model, run_dir, level)  # so a larger --timesteps can continue a finished run
     export_policy(run_dir, config)
     plot_learning_curve(run_dir, task_for(config["env_id"]).metric_label, config["eval_episodes"])
-    result = {"timesteps": int(model.num_timesteps), "train_seconds": seconds}
+    result = {
+        "timesteps": int(model.num_timesteps),
+        "train_seconds": getattr(model, TRAINED_SECONDS),
+        "update_seconds": getattr(model, UPDATE_SECONDS),
+    }
     if level is not None:
         result["start_curriculum"] = {"level": level.level, "advances": level.history}
     # Written before the comparison too: a run stopped during it is trained, and --resume

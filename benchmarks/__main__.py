@@ -661,7 +661,7 @@ def report(results: dict, command: str) -> str:
     if "training" in results:
         lines += [f"## Training throughput (train.py, {describe_cores(m)})", ""]
         lines += _table(
-            ("env", "algorithm", "env steps", "seconds", "env steps/s"),
+            ("env", "algorithm", "env steps", "seconds", "env steps/s", "in gradient updates"),
             [
                 (
                     r["env_id"],
@@ -669,6 +669,8 @@ def report(results: dict, command: str) -> str:
                     r["timesteps"],
                     f"{r['seconds']:.1f}",
                     f"{r['steps_per_second']:.0f}",
+                    # results of older code did not time the updates
+                    f"{r['update_share']:.0%}" if "update_share" in r else "-",
                 )
                 for r in results["training"]["throughput"]
             ],

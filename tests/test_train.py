@@ -129,10 +129,12 @@ def test_named_optimizers_and_automatic_entropy_settings_are_taken():
 
 def test_the_default_run_is_the_one_the_readme_describes():
     """`python train.py` with no flags (the README's main job): PPO on ViewPlanning-v1 for
-    80,000 steps on the procedural training shapes, then 50 held-out comparison episodes."""
+    80,000 steps on the procedural training shapes with the pooled extractor, then 50
+    held-out comparison episodes."""
     config = training.resolve_config()
     assert (config["env_id"], config["algo"], config["seed"]) == ("ViewPlanning-v1", "ppo", 0)
     assert (config["n_timesteps"], config["final_episodes"]) == (80_000, 50)
+    assert config["hyperparams"]["policy_kwargs"]["features_extractor"] == "perception_pooled"
     assert config["env_kwargs"]["object_set"] == "procedural"
     assert config["vec_env"] == "batched"  # ViewPlanning's own vector env, one process
 
@@ -707,6 +709,9 @@ def test_resume_continues_the_step_counter_model_and_replay_buffer(tmp_path):
     assert 0 < before <= seconds[timesteps.index(192)] and seconds == sorted(seconds)
     result = json.loads((run_dir / run_folder.RESULT).read_text())
     assert result["train_seconds"] == getattr(final, training.TRAINED_SECONDS) >= seconds[-1]
+    # So does the part of it spent in gradient updates.
+    updates_before = getattr(first, training.UPDATE_SECONDS)
+    assert 0 < updates_before < result["update_seconds"] < result["train_seconds"]
     best = SAC.load(run_dir / run_folder.BEST_MODEL)  # the time behind its evaluation's row
     assert getattr(best, training.TRAINED_SECONDS) in seconds
 
