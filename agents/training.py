@@ -1459,10 +1459,12 @@ def learn_in_run_folder(
 
 def describe_training_time(result: Mapping) -> str:
     """The training time of a ``result.json``, with the share spent in gradient updates."""
-    seconds, updates = result["train_seconds"], result["update_seconds"]
-    share = f" ({updates / seconds:.0%} in gradient updates)" if seconds > 0 else ""
-    rate = f", {result['timesteps'] / seconds:.0f} steps/s" if seconds > 0 else ""
-    return f"trained {result['timesteps']} steps in {seconds:.0f} s{rate}{share}"
+    steps, seconds = result["timesteps"], result["train_seconds"]
+    said = f"trained {steps} steps in {seconds:.0f} s"
+    if seconds <= 0:
+        return said
+    share = result["update_seconds"] / seconds
+    return f"{said}, {steps / seconds:.0f} steps/s ({share:.0%} in gradient updates)"
 
 
 LAST_EVALUATION, FINAL_COMPARISON = "its last evaluation", "its final comparison"
