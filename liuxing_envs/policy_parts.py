@@ -99,6 +99,34 @@ class OccupancyEncoder(nn.Module):
         return self.net(flat.reshape(-1, self.channels, grid, grid, grid))
 
 
+class HalvingMaxPool3d(nn.Module):
+    """``nn.MaxPool3d(2)`` of cubes with even sides, as three pairwise maxima: the same
+    numbers (NaN included), at about a third of the cost on a CPU, where torch's 3-D pooling
+    kernel was the dearest layer of a gradient step."""
+
+    def forward(self, cubes: torch.Tensor) -> torch.Tensor:
+        batch, channels, depth, height, width = cubes.shape
+        halves = cubes.reshape(batch, channels, depth, height, width // 2, 2)
+        cubes = torch.maximum(halves[..., 0], halves[..., 1])
+        halves = cubes.reshape(batch, channels, depth, height // 2, 2, width // 2)
+        cubes = torch.maximum(halves[..., 0, :], halves[..., 1, :])
+        halves = cubes.reshape(batch, channels, depth // 2, 2, height // 2, width // 2)
+        return torch.maximum(halves[:, :, :, 0], halves[:, :, :, 1])
+
+
+def average_pool(shape: tuple[int, ...], side: int) -> nn.Module:
+    """``nn.AdaptiveAvgPool2d(side)`` of images of ``shape`` (C, H, W): as a plain
+    ``nn.AvgPool2d`` where the windows tile the image and hold a power-of-two count of
+    pixels (then both divide exactly, so the numbers are the same, and the plain one is
+    cheaper), else the adaptive one itself."""
+    height, width = shape[1], shape[2]
+    rows, columns = height // side, width // side
+    area = rows * columns
+    if height == rows * side and width == columns * side and area & (area - 1) == 0:
+        return nn.AvgPool2d((rows, columns))
+    return nn.AdaptiveAvgPool2d(side)
+
+
 class PooledImageEncoder(nn.Sequential):
     """The image averaged down to 16x16 pixels, one strided 3x3 convolution and a linear
     layer: about a fifteenth of :class:`ImageEncoder`'s cost per gradient step at 64x64."""
@@ -114,7 +142,7 @@ class PooledImageEncoder(nn.Sequential):
                 f"got {shape[1]}x{shape[2]}"
             )
         convs = nn.Sequential(
-            nn.AdaptiveAvgPool2d(side),
+            average_pool(shape, side),
             nn.Conv2d(channels, 16, kernel_size=3, stride=2),
             nn.ReLU(),
             nn.Flatten(),
@@ -131,7 +159,7 @@ class PooledOccupancyEncoder(OccupancyEncoder):
         if grid % 2:
             raise ValueError(f"the pooled occupancy encoder needs an even grid side, got {grid}")
         return nn.Sequential(
-            nn.MaxPool3d(2),
+            HalvingMaxPool3d(),
             nn.Conv3d(channels, 8, kernel_size=3, stride=2, padding=1),
             nn.ReLU(),
             nn.Flatten(),

@@ -103,3 +103,30 @@ def test_the_pooled_extractor_sees_occupancy_at_half_the_grid_and_depth_at_16_pi
     image[0, 0, 8, 12], moved[0, 0, 11, 15] = 0.5, 0.5
     assert torch.equal(features(depth=image), features(depth=moved))
     assert not torch.equal(features(depth=image), features())
+
+
+@pytest.mark.parametrize("batch", [1, 64])
+def test_the_pooled_extractors_cheap_pools_give_torchs_own_pools_numbers(batch):
+    import torch
+    from torch import nn
+
+    from liuxing_envs.policy_parts import HalvingMaxPool3d, average_pool
+
+    generator = torch.Generator().manual_seed(batch)
+    cubes = (torch.rand((batch, 2, 16, 16, 16), generator=generator) < 0.1).float()
+    noise = torch.randn((batch, 1, 8, 12, 6), generator=generator)
+    noise[0, 0, 3, 5, 1] = float("nan")  # max pooling keeps a NaN
+    for value in (cubes, noise):
+        torch.testing.assert_close(
+            HalvingMaxPool3d()(value), nn.MaxPool3d(2)(value), rtol=0, atol=0, equal_nan=True
+        )
+    for side in (16, 32, 48, 64, 80, 128):
+        for images in (
+            torch.randint(0, 256, (batch, 1, side, side), generator=generator).float() / 255,
+            torch.randn((batch, 4, side, side), generator=generator),
+        ):
+            pooled = average_pool(images.shape[1:], 16)(images)
+            assert torch.equal(pooled, nn.AdaptiveAvgPool2d(16)(images)), side
+    # Where its windows would divide inexactly (3x3 pixels) it is the adaptive pool itself.
+    assert isinstance(average_pool((1, 48, 48), 16), nn.AdaptiveAvgPool2d)
+    assert isinstance(average_pool((1, 64, 64), 16), nn.AvgPool2d)
