@@ -9,7 +9,7 @@ BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run demo report bench test docs docs-long install clean
+.PHONY: run demo report bench test test-cluster docs docs-long install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -22,7 +22,7 @@ TORCH_SPEC ?= torch==2.13.0
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet $(TORCH_SPEC)
-	$(BIN)/python -m pip install --quiet -e ".[dev,train,docs]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,train,docs,sweep]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -50,7 +50,12 @@ demo: $(VENV)/.installed
 # One test process per core (pytest-xdist); TEST_WORKERS=0 runs them all in this process.
 TEST_WORKERS ?= auto
 test: $(VENV)/.installed
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal -m "not cluster"
+
+# The Ray sweeps too slow for make test (each starts Ray on every core): a two-node cluster
+# whose trial worker is killed, an interrupted sweep, an Optuna search. CI runs it after test.
+test-cluster: $(VENV)/.installed
+	$(BIN)/python -m pytest -m cluster
 
 # The docs site on http://127.0.0.1:8000 (python -m docgen first makes its generated pages).
 docs: $(VENV)/.installed

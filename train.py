@@ -9,18 +9,23 @@ r"""Train PPO or SAC on a liuxing_envs environment.
         --init-from runs/InstrumentGrasp-v1/sac_seed0_20261121-101500 --init-replay-buffer \
         --hyperparams demonstrations=null start_curriculum=null learning_rate=3e-5
     python train.py --recipe recipes/view_planning_ppo.yml [--seed 0]  # a shipped policy
+    python train.py --sweep sweeps/smoke.yml [--ray-address HOST:PORT]  # seeds x settings
 
 Hyper-parameters come from agents/hyperparams/<algo>.yml (keyed by env id; a variant id uses
 its task's -v1 entry) or --config; each
 run writes a folder (see agents/run_folder.py) with its resolved config, models, checkpoints,
 evaluation history and learning curve. Ctrl-C saves a checkpoint that --resume continues.
 A recipe (agents/recipes.py) pins every setting of one or more chained runs; the same
-command again goes on where it stopped.
+command again goes on where it stopped. A sweep (agents/sweep_file.py) runs a grid or an
+Optuna search of configurations, each with several seeds, on Ray Tune (the `sweep` extra):
+every trial is a run folder under the sweep's folder, and the same command resumes it.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 
 from liuxing_envs.opengl import mujoco_import_problem, use_headless_default
@@ -66,6 +71,19 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="train a recipe's stages (recipes/*.yml; every setting pinned there); with "
         "--seed, --run-dir (the recipe's folder) or --log-folder only",
+    )
+    run.add_argument(
+        "--sweep",
+        metavar="FILE",
+        help="run a sweep on Ray Tune (sweeps/*.yml: base settings, seeds, a grid or a "
+        "search space); with --run-dir (the sweep's folder), --log-folder or --ray-address "
+        "only",
+    )
+    run.add_argument(
+        "--ray-address",
+        metavar="ADDRESS",
+        help="with --sweep: join this Ray cluster (default: RAY_ADDRESS, else a local Ray "
+        "with this machine's cores)",
     )
     # "extend": a flag given twice adds its items to the first's (argparse's default keeps
     # only the last group, silently dropping the rest).
@@ -149,7 +167,13 @@ def main(argv: list[str] | None = None) -> int:
         print("interrupted before training began: nothing was saved", file=sys.stderr)
         return interrupts.exit_status()
 
+    if args.ray_address and not args.sweep:
+        parser.error("--ray-address goes with --sweep")
+    if args.sweep and args.recipe:
+        parser.error("give --sweep or --recipe, not both")
     try:
+        if args.sweep:
+            return _run_sweep(parser, args)
         if args.recipe:
             return _run_recipe(parser, args)
         if args.resume:
@@ -209,10 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _run_recipe(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    from agents import recipes
-
-    allowed = ("recipe", "seed", "run_dir", "log_folder")
+def _refuse_flags(parser, args: argparse.Namespace, allowed: tuple[str, ...], why: str) -> None:
+    """Refuse a run-defining flag beside ``allowed[0]`` (--recipe, --sweep), which sets it."""
     given = [
         f"--{name.replace('_', '-')}"
         for name in (*RUN_DEFINING_FLAGS, "resume", "timesteps", "device", "torch_threads")
@@ -220,7 +242,14 @@ def _run_recipe(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
     ]
     given += ["--final-episodes"] if args.final_episodes is not None else []
     if given:
-        parser.error(f"{', '.join(given)} cannot be given with --recipe: the recipe pins it")
+        mode = "--" + allowed[0].replace("_", "-")
+        parser.error(f"{', '.join(given)} cannot be given with {mode}: {why}")
+
+
+def _run_recipe(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    from agents import recipes
+
+    _refuse_flags(parser, args, ("recipe", "seed", "run_dir", "log_folder"), "the recipe pins it")
     try:
         recipe = recipes.load_recipe(args.recipe)
         seed = recipe.seed if args.seed is None else args.seed
@@ -233,6 +262,38 @@ def _run_recipe(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
         parser.error(f"recipe {args.recipe}: {error}")
     print(f"the recipe's policy: {last / 'policy.zip'}")
     return 0
+
+
+def _run_sweep(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    from agents import sweep_file
+
+    allowed = ("sweep", "run_dir", "log_folder", "ray_address")
+    _refuse_flags(parser, args, allowed, "the sweep file sets it")
+    try:
+        sweep = sweep_file.load_sweep(args.sweep)  # checked before Ray starts
+    except ConfigError as error:
+        parser.error(str(error))
+    try:
+        from agents import sweeps
+    except ImportError as error:
+        parser.error(f"--sweep needs Ray Tune and Optuna ({error}): pip install -e '.[sweep]'")
+    folder = args.run_dir or sweep.folder(args.log_folder or sweep_file.DEFAULT_SWEEPS_DIR)
+    print(f"sweep {sweep.name}: {folder}", flush=True)
+    # Tune stops a sweep cleanly on SIGINT (its state saved, each trial's training saving a
+    # checkpoint): a scheduler's SIGTERM is taken for one.
+    signal.signal(signal.SIGTERM, lambda signum, frame: os.kill(os.getpid(), signal.SIGINT))
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        results = sweeps.run_sweep(sweep, folder, args.ray_address)
+    except ConfigError as error:
+        parser.error(str(error))
+    except KeyboardInterrupt:
+        print(f"sweep {sweep.name} interrupted; the same command resumes it", file=sys.stderr)
+        return 130
+    failed = [result for result in results if result.error is not None]
+    print(f"sweep {sweep.name}: {len(results) - len(failed)} of {len(results)} trials finished")
+    print(f"summary: {folder}/{sweeps.SUMMARY}.md; score them: python evaluate.py {folder}")
+    return 1 if failed else 0
 
 
 def _given(**kwargs) -> dict:

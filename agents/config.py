@@ -156,11 +156,13 @@ def require_known(kind: str, name: str, allowed: Sequence[str]) -> str:
 
 
 def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
-    """Unknown keyword names fail here, with a suggestion; values are checked by the env."""
+    """Unknown keyword names fail here, with a suggestion, and values the env's settings
+    refuse, with the env's message, before any env is made."""
     import gymnasium as gym
     from gymnasium.envs.registration import load_env_creator
 
     import liuxing_envs  # noqa: F401  (registers the ids)
+    from liuxing_envs.registration import settings_of
 
     accepted = load_env_creator(gym.spec(env_id).entry_point).keyword_names()
     for name in env_kwargs:
@@ -169,6 +171,11 @@ def check_env_kwargs(env_id: str, env_kwargs: Mapping) -> None:
                 f"unknown env kwarg {name!r} for {env_id}{closest(name, accepted)}; "
                 f"allowed: {', '.join(accepted)}"
             )
+    settable = {name: value for name, value in env_kwargs.items() if name != "render_mode"}
+    try:
+        settings_of(env_id, **settable)
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{env_id} with env kwargs {dict(env_kwargs)}: {error}") from error
 
 
 def parse_assignments(items: Sequence[str] | None, flag: str) -> dict:
@@ -385,6 +392,45 @@ def deep_update(base: Mapping, overrides: Mapping) -> dict:
         else:
             merged[key] = copy.deepcopy(value)
     return merged
+
+
+def load_named_file(
+    path: Path, kind: str, keys: Sequence[str], required: Sequence[str]
+) -> tuple[dict, str]:
+    """The top-level mapping of the YAML file ``path`` (a ``kind`` of file: recipe, sweep)
+    with only ``keys`` and all of ``required``, and how messages name the file; its
+    ``name`` must be a word."""
+    content = load_yaml(path)
+    where = f"{kind} {str(path)!r}"
+    if not isinstance(content, Mapping):
+        raise ConfigError(f"{where} must be a mapping with keys {', '.join(keys)}")
+    for key in content:
+        require_known(f"{where}: key", key, keys)
+    missing = [key for key in required if key not in content]
+    if missing:
+        raise ConfigError(f"{where} has no {', '.join(missing)}")
+    name = content.get("name")
+    if name is not None and (not isinstance(name, str) or not name.isidentifier()):
+        raise ConfigError(f"{where}: name must be a word (letters, digits, _), got {name!r}")
+    return dict(content), where
+
+
+def keep_beside(source: Path, record: Path, holder: str) -> None:
+    """Copy the YAML file ``source`` to ``record`` (in the folder of what it made), or, where
+    ``record`` is there already, refuse a folder that holds ``holder`` (another recipe's or
+    sweep's: its file differs)."""
+    from agents.run_folder import write_text_atomically
+
+    folder = record.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    if record.is_file():
+        if load_yaml(record) != load_yaml(source):
+            raise ConfigError(
+                f"{str(folder)!r} holds {holder} ({record.name} there differs from "
+                f"{str(source)!r}): give another folder"
+            )
+        return
+    write_text_atomically(record, source.read_text())
 
 
 def load_yaml(path: str | Path) -> dict:

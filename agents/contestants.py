@@ -8,6 +8,7 @@ trained with observation normalisation whose statistics are missing.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +17,7 @@ from agents import run_folder
 from agents.config import NamesSettings, check_env_kwargs, closest, marked, require_known
 from agents.evaluation import HELD_OUT_SPLIT, TASKS, SB3Policy, make_env, task_for
 from agents.spaces import describe_space, same_space
+from agents.sweep_file import is_sweep_folder, trial_run_folders, trial_settings
 from agents.training import ALGO_CLASSES
 from liuxing_envs.registration import family
 
@@ -295,6 +297,27 @@ def make_checked_env(contestant: Contestant, **make_kwargs):
 # ---------------------------------------------------------------------- assembling
 
 
+def sweep_contestants(folder: str, *, best: bool, raw_observations: bool) -> list[Contestant]:
+    """Each trial of the sweep in ``folder`` that has a model to score, grouped by its
+    configuration (its seeds are aggregated; the others are told apart)."""
+    contestants = []
+    for configuration, run_dirs in trial_run_folders(folder).items():
+        for run_dir in run_dirs:
+            models = (run_folder.BEST_MODEL, run_folder.FINAL_MODEL)
+            if not any((run_dir / name).is_file() for name in models):
+                print(f"{run_dir.name}: no model yet; left out", flush=True)
+                continue
+            contestant = policy_contestant(
+                str(run_dir), best=best, raw_observations=raw_observations
+            )
+            settings = ", ".join(f"{k}={v}" for k, v in trial_settings(run_dir).items())
+            group = f"{contestant.group} {configuration}" + (f" ({settings})" if settings else "")
+            contestants.append(dataclasses.replace(contestant, group=group))
+    if not contestants:
+        raise ContestantError(f"the sweep in {folder!r} has no trained model to evaluate yet")
+    return contestants
+
+
 def build_contestants(
     sources: Sequence[str],
     *,
@@ -328,6 +351,9 @@ def build_contestants(
         seen.add(key)
         if not looks_like_path:
             named_baselines.append(source)
+            continue
+        if is_sweep_folder(source):
+            contestants += sweep_contestants(source, best=best, raw_observations=raw_observations)
             continue
         contestants.append(
             policy_contestant(

@@ -40,7 +40,8 @@ from agents import run_folder
 from agents.config import (
     SET_BY_FLAGS,
     ConfigError,
-    load_yaml,
+    keep_beside,
+    load_named_file,
     require_known,
     split_hyperparams,
 )
@@ -88,19 +89,7 @@ def load_recipe(path: str | Path) -> Recipe:
     """The recipe in ``path``, checked: known keys, every stage complete and pinned, each
     ``init_from`` an earlier stage. Raises ConfigError naming what is wrong."""
     path = Path(path)
-    content = load_yaml(path)
-    where = f"recipe {str(path)!r}"
-    if not isinstance(content, Mapping):
-        raise ConfigError(f"{where} must be a mapping with keys {', '.join(RECIPE_KEYS)}")
-    for key in content:
-        require_known(f"{where}: key", key, RECIPE_KEYS)
-    missing = [key for key in RECIPE_KEYS if key not in content]
-    if missing:
-        raise ConfigError(f"{where} has no {', '.join(missing)}")
-    if not isinstance(content["name"], str) or not content["name"].isidentifier():
-        raise ConfigError(
-            f"{where}: name must be a word (letters, digits, _), got {content['name']!r}"
-        )
+    content, where = load_named_file(path, "recipe", RECIPE_KEYS, RECIPE_KEYS)
     stages = content["stages"]
     if not isinstance(stages, list) or not stages:
         raise ConfigError(f"{where}: stages must be a non-empty list of mappings")
@@ -270,16 +259,7 @@ RECORD = "recipe.yml"
 
 def _record_recipe(recipe: Recipe, folder: Path) -> None:
     """Keep the recipe beside its runs; a folder started from another recipe is refused."""
-    folder.mkdir(parents=True, exist_ok=True)
-    record = folder / RECORD
-    if record.is_file():
-        if load_yaml(record) != load_yaml(recipe.path):
-            raise ConfigError(
-                f"{str(folder)!r} holds the runs of another recipe ({RECORD} there differs "
-                f"from {str(recipe.path)!r}): give another folder"
-            )
-        return
-    run_folder.write_text_atomically(record, recipe.path.read_text())
+    keep_beside(recipe.path, folder / RECORD, "the runs of another recipe")
 
 
 def _check_same_stage(run_dir: Path, stage: Mapping, seed: int, init_from: Path | None) -> None:

@@ -318,8 +318,11 @@ def test_batched_envs_are_refused_for_a_task_without_a_vector_env_of_its_own():
         ("dummy", "view_budget=-1", "view_budget must be an integer in [1, 64], got -1"),
         ("dummy", "objects=[no/such.obj]", "'no/such.obj' is not a library object"),
         ("batched", "view_budget=-1", "view_budget must be an integer in [1, 64], got -1"),
-        # A SubprocVecEnv worker prints its own traceback; the parent says where to look.
-        ("subproc", "view_budget=-1", "a worker process died building it"),
+        # Checked before any worker starts, with the env's own message.
+        ("subproc", "view_budget=-1", "view_budget must be an integer in [1, 64], got -1"),
+        # Found only when a worker builds the env: it prints its own traceback, and the
+        # parent says where to look.
+        ("subproc", "objects=[no/such.obj]", "a worker process died building it"),
     ],
 )
 def test_an_env_kwarg_value_the_env_refuses_leaves_no_run_folder(
