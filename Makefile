@@ -52,8 +52,9 @@ TEST_WORKERS ?= auto
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal -m "not cluster"
 
-# The Ray sweeps too slow for make test (each starts Ray on every core): a two-node cluster
-# whose trial worker is killed, an interrupted sweep, an Optuna search. CI runs it after test.
+# The real Ray sweeps, too slow for make test (each starts Ray on every core): the smoke
+# sweep, a two-node cluster whose trial worker is killed, an interrupted sweep, an Optuna
+# search. CI runs it after make test.
 test-cluster: $(VENV)/.installed
 	$(BIN)/python -m pytest -m cluster
 

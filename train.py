@@ -155,6 +155,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(
             "give --run-dir (the run's own folder) or --log-folder (a folder of runs), not both"
         )
+    if args.ray_address and not args.sweep:
+        parser.error("--ray-address goes with --sweep")
+    if args.sweep and args.recipe:
+        parser.error("give --sweep or --recipe, not both")
     if problem := mujoco_import_problem():
         parser.error(problem)
     # Heavy imports (torch, SB3, MuJoCo, open3d) after parsing, so --help and flag errors are
@@ -167,10 +171,6 @@ def main(argv: list[str] | None = None) -> int:
         print("interrupted before training began: nothing was saved", file=sys.stderr)
         return interrupts.exit_status()
 
-    if args.ray_address and not args.sweep:
-        parser.error("--ray-address goes with --sweep")
-    if args.sweep and args.recipe:
-        parser.error("give --sweep or --recipe, not both")
     try:
         if args.sweep:
             return _run_sweep(parser, args)

@@ -121,6 +121,7 @@ def _summary(folder: Path) -> list[dict]:
         return list(csv.DictReader(file))
 
 
+@pytest.mark.cluster
 def test_the_smoke_sweep_trains_run_folders_and_the_same_command_trains_nothing_again(
     tmp_path,
 ):
