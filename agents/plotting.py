@@ -132,8 +132,6 @@ def plot_reconstructions(
     """Saved reconstructions (``folder/seed_<seed>/``, of ``seeds`` or else all) beside their
     ground truth: one row per episode, points seen from the same oblique view. None when
     nothing was saved."""
-    import open3d as o3d
-
     if seeds is None:
         episodes = sorted(Path(folder).glob("seed_*/ground_truth.ply"))
     else:  # only this report's: an earlier report into the same folder may have left others
@@ -141,6 +139,8 @@ def plot_reconstructions(
         episodes = [episode for episode in episodes if episode.is_file()]
     if not episodes:
         return None
+    import open3d as o3d  # here, not above: seconds to import, for reports with no meshes
+
     plt = _pyplot()
     figure = plt.figure(figsize=(7, 3.2 * len(episodes)))
     for row, truth_path in enumerate(episodes):

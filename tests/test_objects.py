@@ -511,6 +511,30 @@ def test_box_bottom_is_never_observable_and_top_always_is():
     assert not observable_mask(mesh, points, normals, below, table=True).any()
 
 
+@pytest.mark.parametrize(
+    ("name", "scale", "group"),
+    [("mug", 0.8, 8), ("chair", 1.2, 3), ("procedural_5", 1.0, 8), ("torus", 1.1, 1)],
+)
+def test_views_cast_a_few_at_a_time_see_what_all_at_once_see(name, scale, group):
+    """Casting each group of views only towards the samples earlier groups left unseen gives
+    the mask of one cast of every (view, sample) pair, sample for sample."""
+    mesh = get_object(name).scaled(scale)
+    points, normals = surface_samples(get_object(name), 4096, seed=3)
+    points = points * scale
+    views = observation_viewpoints(
+        DEFAULT_OBSERVATION_RADII,
+        center=mesh.middle,
+        elevations_deg=DEFAULT_OBSERVATION_ELEVATIONS_DEG,
+    )
+    at_once = observable_mask(mesh, points, normals, views, views_per_cast=None)
+    assert 0.5 < at_once.mean() < 1.0  # some samples hidden, so the groups' skipping matters
+    np.testing.assert_array_equal(
+        observable_mask(mesh, points, normals, views, views_per_cast=group), at_once
+    )
+    with pytest.raises(ValueError, match="views_per_cast must be a positive integer or None"):
+        observable_mask(mesh, points, normals, views, views_per_cast=0)
+
+
 def _observable_mask_in_a_forked_child(mesh, points, normals, results) -> None:
     try:
         observable_mask(mesh, points, normals, default_observation_viewpoints())
