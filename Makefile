@@ -9,7 +9,7 @@ BIN := $(VENV)/bin
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= $(MUJOCO_GL)
 
-.PHONY: run demo report bench test test-cluster docs docs-long install clean
+.PHONY: run demo report bench test test-long docs docs-long install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -50,12 +50,14 @@ demo: $(VENV)/.installed
 # One test process per core (pytest-xdist); TEST_WORKERS=0 runs them all in this process.
 TEST_WORKERS ?= auto
 test: $(VENV)/.installed
-	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal -m "not cluster"
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal -m "not cluster and not long"
 
-# The real Ray sweeps, too slow for make test (each starts Ray on every core): the smoke
-# sweep, a two-node cluster whose trial worker is killed, an interrupted sweep, an Optuna
-# search. CI runs it after make test.
-test-cluster: $(VENV)/.installed
+# What is too slow for make test, run by CI after it: the whole pipelines (the built wheel in
+# a venv of its own scoring the shipped policies, benchmark and soak runs), then the real Ray
+# sweeps (each starts Ray on every core, so one at a time): the smoke sweep, a two-node
+# cluster whose trial worker is killed, an interrupted sweep, an Optuna search.
+test-long: $(VENV)/.installed
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal -m long
 	$(BIN)/python -m pytest -m cluster
 
 # The docs site on http://127.0.0.1:8000 (python -m docgen first makes its generated pages).

@@ -287,8 +287,9 @@ def extreme_points(space: Mapping[str, Mapping]) -> list[dict]:
     before Optuna draws between them."""
     points = []
     for path, spec in space.items():
-        ((form, value),) = spec.items()
-        points += [{path: v} for v in value]
+        # Each spec is one form (choice, uniform, ...) whose list holds its choices or bounds.
+        ((_form, values),) = spec.items()
+        points += [{path: value} for value in values]
     return points
 
 

@@ -47,7 +47,7 @@ def test_phase_timer_counts_nested_time_once(monkeypatch):
     assert clock[0] == pytest.approx(sum(timer.seconds.values()))
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
     out = tmp_path / "RESULTS.md"
     run_script("-m", "benchmarks", "--quick", "--sections", "split,physics", "--out", str(out))
@@ -157,7 +157,7 @@ def test_unknown_section_is_refused():
     assert "unknown section(s) ['speed']" in result.stderr and "throughput" in result.stderr
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_short_soak_of_both_envs_passes_and_reports(tmp_path):
     out = tmp_path / "SOAK.md"
     # Ten ViewPlanning envs on ten seeds load new objects into the mesh and sample caches

@@ -59,7 +59,7 @@ def _install(wheel: Path, target) -> None:
     subprocess.run([*pip, "--target", str(target), str(wheel)], check=True)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_wheel_ships_assets_and_loads_the_scene_without_the_checkout(wheel, tmp_path):
     names = set(zipfile.ZipFile(wheel).namelist())
     assert {"liuxing_envs/assets/tabletop.xml", "liuxing_envs/assets/ur5e.xml"} <= names
@@ -151,7 +151,7 @@ print(json.dumps({"package": liuxing_envs.__file__, "action": action.tolist()}))
 )
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_a_model_trained_here_loads_and_acts_from_the_installed_wheel_alone(wheel_python, tmp_path):
     """A saved model names its features extractor by import path: one that named the
     checkout's agents/ folder failed in a pip install with "No module named 'agents'"."""
@@ -223,7 +223,7 @@ def test_the_shipped_report_scores_every_shipped_policy_by_its_policy_zip():
     assert scored == {p.relative_to(ROOT) for p in (ROOT / "policies").glob("*/*/policy.zip")}
 
 
-@pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.parametrize("index", range(3))
 def test_a_shipped_policy_scores_its_report_from_the_installed_wheel_alone(
     wheel_python, tmp_path, index
