@@ -1468,8 +1468,8 @@ def test_a_refused_resume_leaves_the_run_folder_as_it_was(tmp_path, capsys):
     ],
 )
 def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, vec_env, tmp_path):
-    # PPO collects 2 envs x 32 steps per rollout: an uninterrupted 1000-step run ends at 1024.
-    run_dir, total, rollout = tmp_path / "run", 1000, 64
+    # PPO collects 2 envs x 32 steps per rollout: an uninterrupted 600-step run ends at 640.
+    run_dir, total, rollout = tmp_path / "run", 600, 64
     process = subprocess.Popen(
         [
             sys.executable, "train.py",
@@ -1503,8 +1503,8 @@ def test_an_interrupted_run_resumes_to_the_same_final_step_count(interrupt, vec_
     from stable_baselines3 import PPO
 
     final = PPO.load(run_dir / run_folder.FINAL_MODEL)
-    assert final.num_timesteps == -(-total // rollout) * rollout == 1024
-    assert run_folder.latest_checkpoint(run_dir) == 1024
+    assert final.num_timesteps == -(-total // rollout) * rollout == 640
+    assert run_folder.latest_checkpoint(run_dir) == 640
 
 
 def descendants(pid: int) -> dict[int, int]:
