@@ -47,10 +47,8 @@ bench: $(VENV)/.installed
 demo: $(VENV)/.installed
 	$(BIN)/python -m liuxing_envs.demo --out outputs/demo
 
-# One test process per core and one more (pytest-xdist): many tests wait on the scripts they
-# start, and the extra worker keeps the cores busy meanwhile. TEST_WORKERS=0 runs them all in
-# this process.
-TEST_WORKERS ?= $(shell echo $$(( $$(nproc) + 1 )))
+# One test process per core (pytest-xdist); TEST_WORKERS=0 runs them all in this process.
+TEST_WORKERS ?= auto
 test: $(VENV)/.installed
 	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal -m "not cluster and not long"
 

@@ -27,7 +27,7 @@ from agents.statistics import (
     stratified_bootstrap_ci,
     wilson_interval,
 )
-from tests.scripts import REPO, run_script
+from tests.scripts import REPO, run_main, run_script
 
 SHIPPED_VIEW_POLICY = REPO / "policies" / "ViewPlanning-v1" / "ppo"
 
@@ -35,19 +35,32 @@ SHIPPED_VIEW_POLICY = REPO / "policies" / "ViewPlanning-v1" / "ppo"
 @pytest.fixture(scope="module")
 def grasp_run(tmp_path_factory) -> Path:
     """A tiny SAC run on InstrumentGrasp-v1 (normalised observations, as its YAML asks)."""
+    import train
+
     run_dir = tmp_path_factory.mktemp("runs") / "grasp_sac"
-    run_script(
+    run_main(
+        train.main,
         "train.py",
-        *("--env", "InstrumentGrasp-v1", "--algo", "sac", "-n", "256"),
-        *("--run-dir", str(run_dir), "--eval-freq", "128", "--save-freq", "128"),
-        *("--eval-episodes", "1", "--final-episodes", "0", "--no-progress-bar"),
-        *("--hyperparams", "learning_starts=64", "batch_size=32", "demonstrations=null"),
-        # The opening-commanded gripper and the stiff arm: the baselines are scored with the
-        # run's env kwargs, and squeezing trips the hard limit only with these.
-        *("--env-kwargs", "gripper_control=opening", "approach_guard_fingers=false"),
-        *("arm_stiffness=1.0", "max_translation=0.02", "max_yaw=0.2"),
+        [
+            *("--env", "InstrumentGrasp-v1", "--algo", "sac", "-n", "256"),
+            *("--run-dir", str(run_dir), "--eval-freq", "128", "--save-freq", "128"),
+            *("--eval-episodes", "1", "--final-episodes", "0", "--no-progress-bar"),
+            *("--hyperparams", "learning_starts=64", "batch_size=32", "demonstrations=null"),
+            "buffer_size=2000",
+            # The opening-commanded gripper and the stiff arm: the baselines are scored with the
+            # run's env kwargs, and squeezing trips the hard limit only with these.
+            *("--env-kwargs", "gripper_control=opening", "approach_guard_fingers=false"),
+            *("arm_stiffness=1.0", "max_translation=0.02", "max_yaw=0.2"),
+        ],
     )
     return run_dir
+
+
+def run_evaluate(*args: str, check: bool = True):
+    """evaluate.py with ``args``, in this process (see :func:`tests.scripts.run_main`)."""
+    import evaluate
+
+    return run_main(evaluate.main, "evaluate.py", args, check=check)
 
 
 def read_report(out: Path) -> dict:
@@ -140,8 +153,7 @@ def test_probability_of_improvement_counts_wins_and_half_ties():
 @pytest.mark.slow
 def test_view_planning_report_is_paired_and_its_numbers_are_sound(tmp_path):
     out = tmp_path / "report"
-    result = run_script(
-        "evaluate.py",
+    result = run_evaluate(
         str(SHIPPED_VIEW_POLICY),
         *("--baselines", "four-view,uniform,greedy-oracle", "--episodes", "3"),
         *("--reconstruct-episodes", "1", "--save-reconstructions", "1", "--out", str(out)),
@@ -197,8 +209,7 @@ def test_view_planning_report_is_paired_and_its_numbers_are_sound(tmp_path):
 @pytest.mark.slow
 def test_grasp_report_matches_force_traces_and_writes_a_video(grasp_run, tmp_path):
     out = tmp_path / "report"
-    run_script(
-        "evaluate.py",
+    run_evaluate(
         str(grasp_run),
         *("--baselines", "scripted-grasp,squeeze", "--episodes", "2", "--out", str(out)),
         *("--instrument-set", "train"),
@@ -260,8 +271,7 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         config.write_text(re.sub(r"(?m)^seed: \d+$", f"seed: {seed}", config.read_text(), count=1))
         runs.append(str(run))
     out = tmp_path / "report"
-    run_script(
-        "evaluate.py",
+    run_evaluate(
         *runs,
         *("--baselines", "four-view", "--episodes", "2", "--reconstruct-episodes", "0"),
         *("--out", str(out)),
@@ -286,8 +296,8 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     twin = tmp_path / "twin"
     shutil.copytree(runs[0], twin)
     again = tmp_path / "again"
-    run_script(
-        *("evaluate.py", runs[0], str(twin), "--baselines", "none", "--episodes", "2"),
+    run_evaluate(
+        *(runs[0], str(twin), "--baselines", "none", "--episodes", "2"),
         *("--reconstruct-episodes", "0", "--out", str(again)),
     )
     section = read_report(again)["environments"]["ViewPlanning-v1"]
@@ -305,8 +315,8 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
         )
     )
     mixed = tmp_path / "mixed"
-    run_script(
-        *("evaluate.py", *runs, str(other), "--baselines", "none", "--episodes", "2"),
+    run_evaluate(
+        *(*runs, str(other), "--baselines", "none", "--episodes", "2"),
         *("--reconstruct-episodes", "0", "--out", str(mixed)),
     )
     section = read_report(mixed)["environments"]["ViewPlanning-v1"]
@@ -321,8 +331,8 @@ def test_several_seeds_are_aggregated_with_probability_of_improvement(tmp_path):
     text = re.sub(r"(?m)^seed: \d+$", "seed: 5", config.read_text(), count=1)
     config.write_text(re.sub(r"(?m)^(  gamma:) .*$", r"\1 0.97", text, count=1))
     swept = tmp_path / "swept"
-    run_script(
-        *("evaluate.py", *runs, str(tuned), "--baselines", "none", "--episodes", "2"),
+    run_evaluate(
+        *(*runs, str(tuned), "--baselines", "none", "--episodes", "2"),
         *("--reconstruct-episodes", "0", "--out", str(swept)),
     )
     section = read_report(swept)["environments"]["ViewPlanning-v1"]
@@ -437,9 +447,7 @@ def test_grasp_episodes_pair_only_when_the_instrument_lay_in_the_same_pose():
 def evaluate_fails(*args: str, out: Path | None = None) -> str:
     """stderr of an evaluate.py run that must exit with status 2 (a usage error)."""
     out = out or Path("/nonexistent/never-written")
-    result = run_script(
-        "evaluate.py", "--episodes", "1", "--out", str(out), *args, check=False, timeout=300
-    )
+    result = run_evaluate("--episodes", "1", "--out", str(out), *args, check=False)
     assert result.returncode == 2, result.stderr[-2000:]
     return result.stderr
 
@@ -642,8 +650,7 @@ def test_a_lone_model_file_needs_its_env_and_its_algorithm_is_read_from_it(grasp
     assert "drop --raw-observations" in with_flag
     out = tmp_path / "report"
     in_run = grasp_run / run_folder.FINAL_MODEL
-    run_script(
-        "evaluate.py",
+    run_evaluate(
         *(str(lone), str(in_run), "--env", "InstrumentGrasp-v1"),
         *("--baselines", "none", "--episodes", "1", "--out", str(out)),
     )

@@ -14,6 +14,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -29,7 +30,7 @@ from agents import run_folder, training
 from agents.config import ConfigError, parse_assignments
 from agents.evaluation import make_env
 from agents.training import load_policy
-from tests.scripts import REPO, run_script
+from tests.scripts import REPO, run_main, run_script
 
 # Small, fast settings shared by every end-to-end run.
 QUICK = ["--eval-episodes", "2", "--final-episodes", "2", "--no-progress-bar"]
@@ -52,7 +53,11 @@ QUICK_HYPERPARAMS = {
 
 
 def run_train(*args: str, timeout: float = 600, check: bool = True, env: dict | None = None):
-    return run_script("train.py", *args, timeout=timeout, check=check, env=env)
+    """train.py with ``args``: in this process, or in its own with ``env`` added to its
+    environment variables (``timeout`` applies there)."""
+    if env is not None:
+        return run_script("train.py", *args, timeout=timeout, check=check, env=env)
+    return run_main(train.main, "train.py", args, check=check)
 
 
 def sb3_temporary_folders(temp_dir: Path) -> list[Path]:
@@ -633,7 +638,7 @@ def test_a_short_run_leaves_a_complete_run_folder(env_id, algo, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_path):
+def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_path, monkeypatch):
     run_dir = tmp_path / "run"
     demonstrations = "demonstrations={expert: privileged-grasp, episodes: 1, pretrain_steps: 20}"
     args = quick_args("InstrumentGrasp-v1", "sac", run_dir, 128, 1, [demonstrations])
@@ -642,7 +647,8 @@ def test_a_run_seeded_with_demonstrations_keeps_them_in_its_replay_buffer(tmp_pa
     temp_dir = tmp_path / "tmp"
     temp_dir.mkdir()
     extra = ("--env-kwargs", "max_translation=0.02", "max_yaw=0.2")
-    result = run_train(*args, *extra, "--final-episodes", "0", env={"TMPDIR": str(temp_dir)})
+    monkeypatch.setattr(tempfile, "tempdir", str(temp_dir))  # where SB3's loggers default to
+    result = run_train(*args, *extra, "--final-episodes", "0")
     assert "seeding the replay buffer with 1 privileged-grasp episode, then 20" in result.stdout
     assert sb3_temporary_folders(temp_dir) == []  # the cloning steps' logger included
     added = json.loads((run_dir / run_folder.DEMONSTRATIONS).read_text())
