@@ -35,23 +35,18 @@ SHIPPED_VIEW_POLICY = REPO / "policies" / "ViewPlanning-v1" / "ppo"
 @pytest.fixture(scope="module")
 def grasp_run(tmp_path_factory) -> Path:
     """A tiny SAC run on InstrumentGrasp-v1 (normalised observations, as its YAML asks)."""
-    import train
+    from tests.test_train import QUICK_HYPERPARAMS, run_train
 
     run_dir = tmp_path_factory.mktemp("runs") / "grasp_sac"
-    run_main(
-        train.main,
-        "train.py",
-        [
-            *("--env", "InstrumentGrasp-v1", "--algo", "sac", "-n", "256"),
-            *("--run-dir", str(run_dir), "--eval-freq", "128", "--save-freq", "128"),
-            *("--eval-episodes", "1", "--final-episodes", "0", "--no-progress-bar"),
-            *("--hyperparams", "learning_starts=64", "batch_size=32", "demonstrations=null"),
-            "buffer_size=2000",
-            # The opening-commanded gripper and the stiff arm: the baselines are scored with the
-            # run's env kwargs, and squeezing trips the hard limit only with these.
-            *("--env-kwargs", "gripper_control=opening", "approach_guard_fingers=false"),
-            *("arm_stiffness=1.0", "max_translation=0.02", "max_yaw=0.2"),
-        ],
+    run_train(
+        *("--env", "InstrumentGrasp-v1", "--algo", "sac", "-n", "256"),
+        *("--run-dir", str(run_dir), "--eval-freq", "128", "--save-freq", "128"),
+        *("--eval-episodes", "1", "--final-episodes", "0", "--no-progress-bar"),
+        *("--hyperparams", *QUICK_HYPERPARAMS[("InstrumentGrasp-v1", "sac")]),
+        # The opening-commanded gripper and the stiff arm: the baselines are scored with the
+        # run's env kwargs, and squeezing trips the hard limit only with these.
+        *("--env-kwargs", "gripper_control=opening", "approach_guard_fingers=false"),
+        *("arm_stiffness=1.0", "max_translation=0.02", "max_yaw=0.2"),
     )
     return run_dir
 
