@@ -497,7 +497,8 @@ def report(results: dict, command: str) -> str:
         f"- OpenGL renderer of the gl rows: {m.get('gl_renderer', 'not recorded')}",
         f"- Python {m['python']}; {versions}; MUJOCO_GL={m['MUJOCO_GL']}",
         "- Every rate is the median of repeated runs (min and max beside it), wall clock, one"
-        " process per measurement, seeded uniform random actions with resets included.",
+        " process per measurement, seeded uniform random actions (drawn before the clock starts)"
+        " with resets included.",
         "",
     ]
     goals = targets(results)

@@ -42,6 +42,7 @@ import numpy as np  # noqa: E402
 
 from benchmarks.isolated import (  # noqa: E402
     random_action_throughput,
+    random_actions,
     random_steps,
     run_in_fresh_process,
     spread,
@@ -101,9 +102,9 @@ def lockstep_ceilings(config: Config, steps: int, workers=WORKERS) -> dict[str, 
     random_steps(env, steps // 4)
     env.reset()
     times, phases, lengths, phase = [], [], [], 0
-    for _ in range(steps):
+    for action in random_actions(env.action_space, steps):
         start = time.perf_counter()
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        _, _, terminated, truncated, _ = env.step(action)
         ended = terminated or truncated
         if ended:  # the reset belongs to the call, as in the vector env's same-step autoreset
             env.reset()
@@ -160,7 +161,7 @@ def vector_throughput(config: Config, kind: str, workers: int, steps: int, repea
 
 def _vector_rates(env, kind: str, workers: int, steps: int, repeats: int) -> list[float]:
     """Env steps/s of ``repeats`` timed runs of ``steps`` calls of seeded random actions
-    (after ``steps // 4`` untimed); closes ``env``."""
+    (after ``steps // 4`` untimed), drawn before each run's clock starts; closes ``env``."""
     sb3 = kind == "sb3-subproc"
     space = env.action_space
     space.seed(0)
@@ -171,10 +172,13 @@ def _vector_rates(env, kind: str, workers: int, steps: int, repeats: int) -> lis
         env.reset(seed=0)
 
     def run(count: int) -> float:
+        if sb3:
+            actions = [np.stack(random_actions(space, workers)) for _ in range(count)]
+        else:
+            actions = random_actions(space, count)
         start = time.perf_counter()
-        for _ in range(count):
-            actions = np.stack([space.sample() for _ in range(workers)]) if sb3 else space.sample()
-            env.step(actions)
+        for action in actions:
+            env.step(action)
         return count * workers / (time.perf_counter() - start)
 
     run(max(1, steps // 4))
@@ -208,8 +212,8 @@ class NoOpTwin(gym.Env):
 
 def vector_cost_ms(config: Config, calls: int, workers=(1, 2)) -> dict[str, dict[str, float]]:
     """Per vector env kind and worker count: milliseconds per call of ``step`` on
-    :class:`NoOpTwin` copies of ``config``'s env (the calls' random actions included, as in
-    every rate here)."""
+    :class:`NoOpTwin` copies of ``config``'s env (random actions drawn before the clock starts,
+    as in every rate here)."""
     real = make_env(config)
     real.action_space.seed(0)
     real.reset(seed=0)

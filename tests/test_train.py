@@ -138,11 +138,11 @@ def test_named_optimizers_and_automatic_entropy_settings_are_taken():
 
 def test_the_default_run_is_the_one_the_readme_describes():
     """`python train.py` with no flags (the README's main job): PPO on ViewPlanning-v1 for
-    80,000 steps on the procedural training shapes with the pooled extractor, then 50
+    40,960 steps on the procedural training shapes with the pooled extractor, then 40
     held-out comparison episodes."""
     config = training.resolve_config()
     assert (config["env_id"], config["algo"], config["seed"]) == ("ViewPlanning-v1", "ppo", 0)
-    assert (config["n_timesteps"], config["final_episodes"]) == (80_000, 50)
+    assert (config["n_timesteps"], config["final_episodes"]) == (40_960, 40)
     assert config["hyperparams"]["policy_kwargs"]["features_extractor"] == "perception_pooled"
     assert config["env_kwargs"]["object_set"] == "procedural"
     assert config["vec_env"] == "batched"  # ViewPlanning's own vector env, one process
