@@ -593,6 +593,45 @@ def test_a_geom_touching_the_optical_centre_is_never_culled():
             )
 
 
+def test_field_of_view_test_is_conservative_and_its_kernel_agrees_with_numpy(objects_model):
+    # may_reach decides which stand-in a view is cast into and which arm geoms the
+    # self-filter tests pixel by pixel, so a geom it rules out must hold no return: with its
+    # box grown by a margin, no back-projected point within that margin of the box. The
+    # compiled kernel and the numpy code must rule out the same geoms.
+    model = objects_model
+    rng = np.random.default_rng(4)
+    margin = 0.003
+    geoms = np.arange(model.ngeom)
+    with DepthCamera(model, WRIST_CAMERA, backend="raycast") as camera:
+        frustum = camera.active_backend.frustum
+        assert frustum.compiled  # numba is a dependency
+        ruled_out = kept = 0
+        for _ in range(60):
+            data = _data_at(model, HOME_QPOS + rng.uniform(-0.9, 0.9, HOME_QPOS.size))
+            depth = camera.render(data)
+            points = camera.points_world(depth, data)
+            position, rotation = camera.pose(data)
+            answers = {}
+            for compiled in (True, False):
+                frustum.compiled = compiled
+                for grow in (0.0, margin):
+                    answers[compiled, grow] = frustum.may_reach(
+                        model, data, geoms, position, rotation, grow
+                    )
+            frustum.compiled = True
+            for grow in (0.0, margin):
+                np.testing.assert_array_equal(answers[True, grow], answers[False, grow])
+            assert (answers[True, 0.0] <= answers[True, margin]).all()  # growing keeps more
+            for geom in np.flatnonzero(~answers[True, margin]):
+                box = model.geom_aabb[geom]
+                local = (points - data.geom_xpos[geom]) @ data.geom_xmat[geom].reshape(3, 3)
+                outside = np.abs(local - box[:3]) > box[3:] + margin
+                assert outside.any(axis=1).all(), f"geom {geom} ruled out but holds returns"
+                ruled_out += 1
+            kept += int(answers[True, margin].sum())
+        assert ruled_out >= 200 and kept >= 200  # both answers were given, many times
+
+
 def test_raycast_shortcut_follows_static_geoms_moved_at_run_time():
     # The shortcut decides once which static geoms rise above the table; a model edited
     # afterwards (here a box raised through the table top) must not keep a stale decision.

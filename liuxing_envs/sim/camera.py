@@ -617,7 +617,12 @@ class DepthCamera:
         on_geoms = np.zeros(depth.shape, dtype=bool)
         ids = np.asarray(geom_ids, dtype=np.intp)
         position, rotation = self.pose(data)
-        # Bounding spheres first (cheap): most views show none of the robot.
+        # Most views show none of the robot: a geom whose box, grown by the margin, no ray
+        # reaches has no return within the margin of it.
+        ids = ids[self._frustum.may_reach(self.model, data, ids, position, rotation, margin)]
+        if not ids.size:
+            return on_geoms
+        # Then bounding spheres, the test whose survivors the pixels are checked against.
         centres = (data.geom_xpos[ids] - position) @ rotation
         radii = self.model.geom_rbound[ids] + margin
         ahead = -centres[:, 2]

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, NamedTuple, Protocol
 import mujoco
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.forking import check_opengl_not_forked
 from liuxing_envs.opengl import new_renderer
 from liuxing_envs.perception.pointcloud import camera_rays
@@ -94,6 +95,9 @@ class ViewFrustum:
         )
         #: Unit outward normals in the camera frame of the planes bounding every pixel ray.
         self.planes = planes / np.linalg.norm(planes, axis=1, keepdims=True)
+        #: Whether :meth:`may_reach` runs the compiled kernel (:mod:`liuxing_envs.kernels.frustum`,
+        #: default where numba is installed) or the numpy code; both are conservative.
+        self.compiled = kernels.available()
 
     def may_reach(
         self,
@@ -102,20 +106,33 @@ class ViewFrustum:
         geom_ids: np.ndarray,
         position: np.ndarray,
         rotation: np.ndarray,
+        grow: float = 0.0,
     ) -> np.ndarray:
         """Per geom: False when it lies out of reach of every ray from a camera at
         ``position`` with axes ``rotation`` (columns); conservative, as
-        :meth:`DepthCamera.may_see_geoms` documents."""
+        :meth:`DepthCamera.may_see_geoms` documents. ``grow`` (m) widens every geom's box
+        and bounding sphere: a geom then out of reach has no point within ``grow`` of it
+        that a ray reaches."""
         ids = np.asarray(geom_ids, dtype=np.intp)
+        if self.compiled:
+            from liuxing_envs.kernels.frustum import may_reach
+
+            reached = np.empty(ids.size, dtype=bool)
+            may_reach(
+                ids, data.geom_xpos, data.geom_xmat, model.geom_aabb, model.geom_rbound,
+                np.asarray(position, dtype=np.float64), np.asarray(rotation, dtype=np.float64),
+                self.planes, self.ray_length, float(grow), _VIEW_MARGIN, reached,
+            )  # fmt: skip
+            return reached
         offset = data.geom_xpos[ids] - position
-        box = model.geom_aabb[ids]
+        box = model.geom_aabb[ids] + np.repeat([0.0, grow], 3)
         normals = self.planes @ rotation.T  # (5, 3) outward normals in the world
         # Nearest point of each box to each plane (signed, > 0 outside): its centre's offset
         # minus the half-sizes weighted by how far each box axis leans along the normal.
         normals_in_geom = normals @ data.geom_xmat[ids].reshape(-1, 3, 3)  # (geom, plane, xyz)
         nearest = offset @ normals.T + (normals_in_geom @ box[:, :3, None])[..., 0]
         nearest -= (np.abs(normals_in_geom) @ box[:, 3:, None])[..., 0]
-        in_range = np.sqrt(np.einsum("ni,ni->n", offset, offset)) - model.geom_rbound[ids]
+        in_range = np.sqrt(np.einsum("ni,ni->n", offset, offset)) - model.geom_rbound[ids] - grow
         return (in_range <= self.ray_length) & (nearest <= _VIEW_MARGIN).all(axis=1)
 
 
