@@ -1,7 +1,11 @@
-"""What a process pays before its first step: open3d, seconds to import, only when it is used."""
+"""What a process pays before its first step: open3d, seconds to import, only when it is used;
+numba's compilation, once per checkout."""
 
+import os
 import subprocess
 import sys
+
+import pytest
 
 _STEP_BOTH_ENVS = """
 import sys
@@ -49,3 +53,48 @@ def test_a_slow_first_preparation_of_the_objects_says_what_it_does(tmp_path, mon
     assert len(messages) == 10  # two objects at the default five scales
     assert "'box' at scale " in messages[0] and "(1 of 10 object variants;" in messages[0]
     assert "'bench' at scale " in messages[-1] and "(10 of 10 object variants;" in messages[-1]
+
+
+_COUNT_COMPILED = """
+import sys
+from pathlib import Path
+print(sum(1 for _ in Path(sys.argv[1]).rglob("*.nbc")))
+"""
+
+
+@pytest.mark.long
+def test_the_kernel_warm_up_leaves_nothing_for_a_run_to_compile(tmp_path):
+    # make install runs `python -m liuxing_envs.kernels`; afterwards stepping the envs in
+    # the settings a training and its evaluation use (the oracle's previews, free space,
+    # both grasp observation kinds) must find every kernel it calls in numba's cache.
+    environ = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "MUJOCO_GL": "egl"}
+
+    def run(*args: str) -> str:
+        done = subprocess.run(
+            [sys.executable, *args], capture_output=True, text=True, timeout=900, env=environ
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        return done.stdout
+
+    assert "kernels compiled and cached" in run("-m", "liuxing_envs.kernels")
+    compiled = int(run("-c", _COUNT_COMPILED, str(tmp_path)))
+    modules = {path.name.split(".")[0] for path in tmp_path.rglob("*.nbc")}
+    assert {"coverage", "depth", "fusion", "ik", "one_pose_ik", "path_proof", "frustum"} <= modules
+    run("-c", _STEP_BOTH_ENVS)
+    run("-c", _STEP_VIEW_PLANNING_AS_TRAINING_DOES)
+    assert int(run("-c", _COUNT_COMPILED, str(tmp_path))) == compiled
+
+
+_STEP_VIEW_PLANNING_AS_TRAINING_DOES = """
+import gymnasium as gym
+import liuxing_envs
+
+vec = gym.make_vec("ViewPlanning-v1", num_envs=2, object_set="procedural")
+vec.reset(seed=0)
+for _ in range(6):
+    vec.step(vec.action_space.sample())
+vec.close()
+env = gym.make("ViewPlanning-v1", object_set="held_out").unwrapped
+env.reset(seed=1)
+env.preview_view(0.5, 0.4, 0.45)
+"""

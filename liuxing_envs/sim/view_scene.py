@@ -8,9 +8,11 @@ that belongs to the episode: where the object stands and MuJoCo's state).
 
 from __future__ import annotations
 
+import copy
 import itertools
 import logging
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
@@ -72,9 +74,8 @@ class ViewScene:
         # making them all up front took most of a first gym.make, and object sets grow.
         self._trackers: dict[tuple[str, float], CoverageTracker] = {}
         self._variant_scenes: dict[tuple[str, float], VariantScenes] = {}
-        spec = load_scene_spec()
-        self.stage.add_to_spec(spec)
-        self.model = spec.compile()
+        self._compiled = compiled_scene(self.stage)  # keeps the shared original alive
+        self.model = copy.copy(self._compiled)  # this scene's own: placing edits its arrays
         self.data = mujoco.MjData(self.model)
         self.stage.bind(self.model, self.data)
         reset_to_home(self.model, self.data)
@@ -205,6 +206,24 @@ class EpisodeState:
         for name, value in self.poses.items():
             getattr(data, name)[:] = value
         data.warning.number[:] = self.warnings
+
+
+#: The compiled tabletop of each object set alive in this process, by its variants: an
+#: entry goes with the last scene made from it.
+COMPILED_SCENES: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+
+def compiled_scene(stage: ObjectStage) -> mujoco.MjModel:
+    """The tabletop with ``stage``'s every variant compiled in, shared by the scenes of a
+    process, which each place objects in a copy: copying takes milliseconds where compiling
+    builds every mesh's convex hull again (seconds for a large object set)."""
+    key = (tuple(stage.meshes.values()), stage.scales)
+    model = COMPILED_SCENES.get(key)
+    if model is None:
+        spec = load_scene_spec()
+        stage.add_to_spec(spec)
+        model = COMPILED_SCENES[key] = spec.compile()
+    return model
 
 
 @lru_cache(maxsize=OBSERVABLE_CACHE_SIZE)
