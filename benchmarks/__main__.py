@@ -383,8 +383,8 @@ def targets(results: dict) -> list[tuple]:
         ratio = measured["view_step"]["step_to_reference"]
         out.append(
             (
-                "ViewPlanning-v1 view step / one 64x64 image cast by MuJoCo (the reference "
-                f"scene): <= {kernels.STEP_TO_REFERENCE_TARGET:.1f}x",
+                "ViewPlanning-v1 view step, resets included / one 64x64 image cast by MuJoCo "
+                f"(the reference scene): <= {kernels.STEP_TO_REFERENCE_TARGET:.1f}x",
                 f"{ratio:.2f}x",
                 ratio <= kernels.STEP_TO_REFERENCE_TARGET,
             )
@@ -434,12 +434,19 @@ def _kernel_tables(measured: dict) -> list[str]:
     step = measured.get("view_step")
     if step:
         lines += _table(
-            ("one MuJoCo image ms", "view step ms", "step / image", "reset ms"),
+            (
+                "one MuJoCo image ms",
+                "view step ms, resets included",
+                "step / image",
+                "median view step ms",
+                "median reset ms",
+            ),
             [
                 (
                     f"{step['reference_ms']:.3f}",
                     f"{step['step_ms']:.3f}",
                     f"{step['step_to_reference']:.2f}x",
+                    f"{step['median_step_ms']:.3f}" if "median_step_ms" in step else "-",
                     f"{step['reset_ms']:.3f}",
                 )
             ],

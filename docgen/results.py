@@ -230,7 +230,8 @@ def _kernel_tables(kernels: dict | None) -> list[str]:
         return []
     step = kernels["view_step"]
     return [
-        "A ViewPlanning-v1 view step against one 64×64 image that MuJoCo casts of a small "
+        "A ViewPlanning-v1 view step, its episode's reset included, against one 64×64 "
+        "image that MuJoCo casts of a small "
         f"reference scene ({step['reference_ms']:.2f} ms here): "
         f"**{step['step_to_reference']:.2f}×** its cost ({step['step_ms']:.2f} ms). Each "
         "compiled kernel against the code it replaces, on recorded inputs:",

@@ -107,11 +107,13 @@ def test_quick_kernels_section_compares_each_kernel_and_a_view_step_with_mujoco(
     run_script("-m", "benchmarks", "--quick", "--sections", "kernels", "--out", str(out))
     text = out.read_text()
     measured = json.loads(out.with_suffix(".json").read_text())["kernels"]
-    assert "## Compiled kernels" in text and "view step / one 64x64 image cast by MuJoCo" in text
+    assert "## Compiled kernels" in text
+    assert "view step, resets included / one 64x64 image cast by MuJoCo" in text
     step = measured["view_step"]
     assert 0 < step["reference_ms"] and step["step_to_reference"] == pytest.approx(
         step["step_ms"] / step["reference_ms"]
     )
+    assert 0 < step["median_step_ms"] and 0 < step["reset_ms"]
     assert [k["kernel"] for k in measured["kernels"]] == [
         "coverage update",
         "depth image 64x64",
