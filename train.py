@@ -116,6 +116,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--device", help="torch device: auto, cpu, cuda, cuda:N (default: auto)")
     run.add_argument("--torch-threads", type=int, help="torch CPU threads (default: 1)")
+    run.add_argument(
+        "--env-workers",
+        type=int,
+        help="processes stepping a batched vector env's scenes, this one included (default: "
+        "from YAML, else 1)",
+    )
     logs = parser.add_argument_group("evaluation, checkpoints and logs")
     logs.add_argument("--eval-freq", type=int, help="env steps between evaluations (0: none)")
     logs.add_argument(
@@ -194,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
                 device=args.device,
                 final_episodes=args.final_episodes,
                 torch_threads=args.torch_threads,
+                env_workers=args.env_workers,
             )
             return 0
         config = training.resolve_config(
@@ -214,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
                 device=args.device,
                 tensorboard=args.tensorboard,
                 torch_threads=args.torch_threads,
+                env_workers=args.env_workers,
                 init_from=args.init_from,
                 init_replay_buffer=args.init_replay_buffer,
             )
@@ -237,7 +245,14 @@ def _refuse_flags(parser, args: argparse.Namespace, allowed: tuple[str, ...], wh
     """Refuse a run-defining flag beside ``allowed[0]`` (--recipe, --sweep), which sets it."""
     given = [
         f"--{name.replace('_', '-')}"
-        for name in (*RUN_DEFINING_FLAGS, "resume", "timesteps", "device", "torch_threads")
+        for name in (
+            *RUN_DEFINING_FLAGS,
+            "resume",
+            "timesteps",
+            "device",
+            "torch_threads",
+            "env_workers",
+        )
         if name not in allowed and getattr(args, name) is not None
     ]
     given += ["--final-episodes"] if args.final_episodes is not None else []

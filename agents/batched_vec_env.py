@@ -25,7 +25,8 @@ _FINAL_KEYS = ("final_obs", "final_info")
 
 
 class BatchedVecEnv(VecEnv):
-    """``vector_env`` (its metadata's ``autoreset_mode`` must be ``SAME_STEP``) as an SB3
+    """``vector_env`` (its metadata's ``autoreset_mode`` must be ``SAME_STEP``, and it must
+    have ``get_attr``, ``set_attr`` and ``call_at`` with scene indices) as an SB3
     ``VecEnv``; ``monitor_files`` (one per scene, or None) get the Monitor rows of each
     scene's episodes, with the ``info_keywords`` of the episode's last info."""
 
@@ -99,27 +100,22 @@ class BatchedVecEnv(VecEnv):
         for writer in self._writers:
             writer.close()
 
+    # The scenes may live in worker processes: asked through the vector env.
     def get_attr(self, attr_name: str, indices=None) -> list[Any]:
-        return [getattr(self._scenes[i], attr_name) for i in self._get_indices(indices)]
+        return list(self.vector_env.get_attr(attr_name, indices=self._get_indices(indices)))
 
     def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
-        for i in self._get_indices(indices):
-            setattr(self._scenes[i], attr_name, value)
+        indices = list(self._get_indices(indices))
+        self.vector_env.set_attr(attr_name, [value] * len(indices), indices=indices)
 
     def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list:
-        return [
-            getattr(self._scenes[i], method_name)(*method_args, **method_kwargs)
-            for i in self._get_indices(indices)
-        ]
+        indices = self._get_indices(indices)
+        return list(self.vector_env.call_at(indices, method_name, *method_args, **method_kwargs))
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         return [False for _ in self._get_indices(indices)]
 
     # ------------------------------------------------------------------ internals
-    @property
-    def _scenes(self) -> list:
-        return self.vector_env.envs
-
     def _scene_info(self, infos: dict[str, Any], i: int) -> dict[str, Any]:
         """Scene ``i``'s own info out of a vector env's dict of arrays and masks."""
         info = {}

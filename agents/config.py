@@ -27,6 +27,8 @@ ALGOS = ("ppo", "sac")
 HARNESS_KEYS = {
     "n_timesteps": "total environment steps of a run",
     "n_envs": "parallel training environments",
+    "env_workers": "processes stepping a batched vector env's scenes, this one included "
+    "(train.py's --env-workers; a sweep trial's CPUs at most)",
     "policy": "SB3 policy class name (MultiInputPolicy for the Dict observations)",
     "env_kwargs": "keyword arguments of gym.make for training and evaluation",
     "eval_env_kwargs": "env_kwargs the periodic evaluation changes, e.g. {object_set: validation}"

@@ -116,7 +116,10 @@ class Sweep:
         settings = self.base
         for path, value in params.items():
             settings = _set_path(settings, path, value)
-        return training.resolve_config(**settings, seed=seed, torch_threads=self.threads)
+        config = training.resolve_config(**settings, seed=seed, torch_threads=self.threads)
+        # Trials run side by side: a trial's env worker processes share its CPUs.
+        config["env_workers"] = min(config["env_workers"], self.threads)
+        return config
 
     def folder(self, parent: Path = DEFAULT_SWEEPS_DIR) -> Path:
         """Where the sweep runs by default (the same command finds it again)."""

@@ -111,6 +111,9 @@ DEFAULT_RUNS_DIR = Path("runs")
 #: One torch thread: on a small machine the envs need the other cores, and PPO's minibatch
 #: updates ran 7x slower with 2 threads competing with 4 envs on 2 cores (0.73 s vs 5.1 s).
 DEFAULT_TORCH_THREADS = 1
+#: Processes that step a batched vector env's scenes when neither the hyper-parameter file
+#: nor ``--env-workers`` says: this one alone.
+DEFAULT_ENV_WORKERS = 1
 KEEP_CHECKPOINTS = 3
 #: Periodic evaluation replays the same seeds each time (so its curve compares like with
 #: like), offset from the training seeds.
@@ -131,6 +134,7 @@ SAVED_CONFIG_DEFAULTS = {
     "device": DEFAULT_DEVICE,
     "tensorboard": False,
     "torch_threads": DEFAULT_TORCH_THREADS,
+    "env_workers": DEFAULT_ENV_WORKERS,
     "init_from": None,
 }
 
@@ -157,6 +161,7 @@ def resolve_config(
     device: str = DEFAULT_DEVICE,
     tensorboard: bool = False,
     torch_threads: int = DEFAULT_TORCH_THREADS,
+    env_workers: int | None = None,
     init_from: str | None = None,
     init_replay_buffer: bool = False,
 ) -> dict:
@@ -165,7 +170,8 @@ def resolve_config(
     ``hyperparams`` and ``env_kwargs`` merged over it and the explicit arguments on top.
     ``init_from`` names a trained run whose policy the new run starts from, and with
     ``init_replay_buffer`` its newest checkpoint's replay buffer too. ``eval_episodes`` and
-    ``final_episodes`` left None scale with the run (:func:`auto_episodes`)."""
+    ``final_episodes`` left None scale with the run (:func:`auto_episodes`). ``env_workers``
+    left None is the entry's, else :data:`DEFAULT_ENV_WORKERS`."""
     require_known("environment", env_id, liuxing_envs.ENV_IDS)
     require_known("algorithm", algo, ALGOS)
     vec_env = default_vec_env(env_id) if vec_env is None else vec_env
@@ -222,6 +228,12 @@ def resolve_config(
         "tensorboard": bool(tensorboard),
         "torch_threads": int_at_least("«torch_threads»", torch_threads),
     }
+    if env_workers is None and harness.get("env_workers") is not None:
+        # The file's choice for its own settings: a run given fewer envs or another kind of
+        # vector env gets what fits those.
+        from_file = int_at_least("«env_workers»", harness["env_workers"])
+        env_workers = min(from_file, config["n_envs"]) if config["vec_env"] == "batched" else 1
+    config["env_workers"] = check_env_workers(config, env_workers)
     if init_replay_buffer and not init_from:
         raise ConfigError("«init_replay_buffer» needs «init_from» (a run folder) to take it from")
     config["init_from"] = (
@@ -473,6 +485,25 @@ def _check_batched(config: dict) -> None:
         raise ConfigError("«vec_env» batched cannot wrap each env in a start curriculum")
 
 
+def check_env_workers(config: dict, workers) -> int:
+    """``workers`` (None: the default) as the run's «env_workers»: at most its «n_envs», and
+    more than one only for a batched vector env (the other kinds have theirs: subproc)."""
+    workers = int_at_least(
+        "«env_workers»", DEFAULT_ENV_WORKERS if workers is None else workers, minimum=1
+    )
+    if workers > config["n_envs"]:
+        raise ConfigError(
+            f"«env_workers» {workers} exceeds «n_envs» {config['n_envs']}: each worker process "
+            "steps one scene at least"
+        )
+    if workers > 1 and config["vec_env"] != "batched":
+        raise ConfigError(
+            f"«env_workers» {workers} needs «vec_env» batched; «vec_env» subproc runs a "
+            "process per env"
+        )
+    return workers
+
+
 def build_vec_env(config: dict, run_dir: Path, start_steps: int = 0) -> gym.Env:
     """The training envs of a start (``start_steps`` 0) or resume of the run, each logging
     its episodes to a Monitor file of its own (see :func:`run_folder.monitor_path`)."""
@@ -490,7 +521,12 @@ def build_vec_env(config: dict, run_dir: Path, start_steps: int = 0) -> gym.Env:
         _check_batched(config)
         check_env_kwargs(config["env_id"], config["env_kwargs"])
         try:
-            envs = gym.make_vec(config["env_id"], n_envs, **config["env_kwargs"])
+            envs = gym.make_vec(
+                config["env_id"],
+                n_envs,
+                workers=config.get("env_workers", DEFAULT_ENV_WORKERS),
+                **config["env_kwargs"],
+            )
         except (TypeError, ValueError, FileNotFoundError) as error:
             message = f"{config['env_id']} with env kwargs {config['env_kwargs']}: {error}"
             raise ConfigError(message) from error
@@ -1180,7 +1216,8 @@ def load_trained_weights(model, trained: TrainedStart) -> None:
 def resume(run_dir: Path, n_timesteps: int | None = None, progress_bar: bool = False, **overrides):
     """Continue a run from its newest checkpoint, with the step counter, the replay buffer
     (off-policy algorithms) and the observation normaliser as they were saved. ``n_timesteps``
-    may raise the run's total; ``overrides`` may change ``device`` or ``final_episodes``.
+    may raise the run's total; ``overrides`` may change ``device``, ``final_episodes``,
+    ``torch_threads`` or ``env_workers``.
     A folder another process is training in is refused."""
     run_dir = Path(run_dir)
     # A folder that is no run gets read_config's message, and no lock file left in it.
@@ -1206,6 +1243,7 @@ def _resume(run_dir: Path, n_timesteps: int | None, progress_bar: bool, **overri
         "device": check_device,
         "final_episodes": lambda value: int_at_least("«final_episodes»", value, minimum=0),
         "torch_threads": lambda value: int_at_least("«torch_threads»", value),
+        "env_workers": lambda value: check_env_workers(config, value),
     }
     for key, value in overrides.items():
         if key not in checks:
@@ -1569,6 +1607,7 @@ def _check_saved_config(config: dict, path: Path) -> None:
             int_at_least(key, config[key], minimum=0)
         int_at_least("eval_episodes", config["eval_episodes"])
         int_at_least("torch_threads", config["torch_threads"])
+        check_env_workers(config, config["env_workers"])
         for key in ("tensorboard", "normalize"):
             if not isinstance(config[key], bool):
                 raise ConfigError(f"{key} must be true or false, got {config[key]!r}")

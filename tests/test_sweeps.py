@@ -97,6 +97,15 @@ def test_a_grid_runs_every_combination_with_every_seed_through_train_pys_checks(
     assert len({trial_name(point, 0) for point in points}) == 4
 
 
+def test_a_trials_cpus_cap_its_env_worker_processes(tmp_path):
+    # ppo.yml steps ViewPlanning's batched scenes in two processes; trials run side by side,
+    # so a trial with one CPU keeps its scenes in its own process.
+    base = {**yaml.safe_load(SMOKE.read_text())["base"], "n_envs": 2, "vec_env": "batched"}
+    for cpus, workers in ((2, 2), (1, 1)):
+        sweep = load_sweep(_sweep_file(tmp_path, base=base, resources={"cpu": cpus}))
+        assert sweep.run_config(sweep.grid_points()[0], seed=0)["env_workers"] == workers
+
+
 def test_train_py_refuses_a_bad_sweep_before_ray_starts(tmp_path):
     started = time.monotonic()
     result = run_script(

@@ -294,6 +294,9 @@ def test_a_python_expression_stays_a_string():
         (["--device", "meta"], "is a meta device; training runs on auto, cpu, cuda or cuda:N"),
         (["--device", "mps"], "is a mps device; training runs on"),
         (["--timesteps", "many"], "invalid int value"),
+        (["--env-workers", "0"], "env-workers must be an integer >= 1"),
+        (["--env-workers", "5"], "5 exceeds"),
+        (["--env-workers", "2", "--vec-env", "dummy"], "2 needs"),
         (
             [
                 "--env",

@@ -141,3 +141,79 @@ def test_the_adapter_refuses_a_vector_env_that_resets_on_the_next_step():
     with pytest.raises(ValueError, match="SAME_STEP"):
         BatchedVecEnv(envs)
     envs.close()
+
+
+def test_scenes_in_worker_processes_give_the_same_episodes():
+    # Scene 0 in this process, scenes 1 and 2 in two workers: every reset, step, autoreset
+    # and attribute the same as all three here; a worker's error is raised here by name.
+    here = ViewPlanningVectorEnv(N, **FAST)
+    spread = ViewPlanningVectorEnv(N, workers=3, **FAST)
+    assert len(spread.worker_pids) == 2 and here.worker_pids == ()
+    assert_same(spread.reset(seed=[4, 8, 1]), here.reset(seed=[4, 8, 1]), "reset")
+    ended = 0
+    for t, step_actions in enumerate(actions(3, 10)):
+        got = spread.step(step_actions)
+        assert_same(got, here.step(step_actions), f"step {t}")
+        ended += int(got[4].get("_final_obs", np.zeros(N)).sum())
+    assert ended == 2 * N
+    mask = np.array([False, True, True])
+    assert_same(
+        spread.reset(seed=5, options={"reset_mask": mask}),
+        here.reset(seed=5, options={"reset_mask": mask}),
+        "masked reset",
+    )
+    assert spread.get_attr("views_used") == here.get_attr("views_used")
+    assert spread.get_attr("views_used", indices=[2, 0]) == here.get_attr("views_used")[::-2]
+    spread.set_attr("label", ["b", "c"], indices=[2, 1])  # an attribute of the user's
+    assert spread.get_attr("label", indices=[1, 2]) == ("c", "b")
+    assert_same(
+        spread.call_at([1], "view_to_action", 0.0, 0.5, 0.4),
+        here.call_at([1], "view_to_action", 0.0, 0.5, 0.4),
+        "call_at",
+    )
+    bad = np.zeros((N, 3))
+    bad[2, 1] = np.nan  # the last scene's: in a worker
+    with pytest.raises(ValueError, match="finite"):
+        spread.step(bad)
+    here.close()
+    spread.close()
+
+
+def test_a_dead_worker_is_named_at_the_next_call_instead_of_hanging():
+    import os
+    import signal
+
+    envs = ViewPlanningVectorEnv(N, workers=2, **FAST)
+    envs.reset(seed=0)
+    (pid,) = envs.worker_pids
+    os.kill(pid, signal.SIGKILL)
+    with pytest.raises(RuntimeError, match="scenes 2-2 died"):
+        envs.step(actions(0, 1)[0])
+    envs.close()  # closing with a dead worker does not hang either
+
+
+@pytest.mark.parametrize("workers", [0, N + 1, 1.5, True])
+def test_a_bad_number_of_workers_is_refused_by_name(workers):
+    with pytest.raises(ValueError, match="workers must be a whole number from 1 to num_envs"):
+        ViewPlanningVectorEnv(N, workers=workers, **FAST)
+
+
+_EXIT_WITHOUT_CLOSING = """
+from liuxing_envs.envs.view_planning_vector import ViewPlanningVectorEnv
+envs = ViewPlanningVectorEnv(2, workers=2, objects=["box"], scales=(1.0,), coverage_samples=2048)
+envs.reset(seed=0)
+print("made")
+"""
+
+
+def test_a_process_that_never_closes_its_workers_still_exits():
+    # At exit multiprocessing sends SIGTERM to daemon workers and waits for them; a worker
+    # ignores SIGTERM (a signal to the process group is the parent's to handle), so the
+    # vector env must close its workers first or the process never ends.
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-c", _EXIT_WITHOUT_CLOSING], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0 and done.stdout.strip() == "made", done.stderr[-2000:]
