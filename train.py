@@ -1,6 +1,6 @@
 r"""Train PPO or SAC on a liuxing_envs environment.
 
-    python train.py                                   # ViewPlanning-v1, PPO, ~6.5 min on 2 cores
+    python train.py                                   # ViewPlanning-v1, PPO, ~6 min on 2 cores
     python train.py --env InstrumentGrasp-v1 --algo sac --seed 1 -n 300000
     python train.py --algo ppo --hyperparams learning_rate=1e-4 policy_kwargs.net_arch=[64,64]
     python train.py --env-kwargs view_budget=6 --eval-freq 2000
