@@ -147,6 +147,95 @@ def test_compiled_images_equal_casting_every_ray_for_every_primitive_type():
     assert shown >= 30
 
 
+def _icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and faces of a unit icosphere, flattened a little so that it has flat sides."""
+    t = (1 + 5**0.5) / 2
+    vertices = [
+        [-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+        [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1],
+    ]  # fmt: skip
+    faces = [
+        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
+        [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
+        [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
+    ]  # fmt: skip
+    vertices = [np.array(v, float) / np.linalg.norm(v) for v in vertices]
+    middle: dict[tuple[int, int], int] = {}  # an edge split once is never an edge again
+
+    def mid(a, b):
+        key = (min(a, b), max(a, b))
+        if key not in middle:
+            point = vertices[a] + vertices[b]
+            vertices.append(point / np.linalg.norm(point))
+            middle[key] = len(vertices) - 1
+        return middle[key]
+
+    for _ in range(subdivisions):
+        faces = [
+            face
+            for a, b, c in faces
+            for face in ([a, mid(a, b), mid(a, c)], [b, mid(b, c), mid(a, b)],
+                         [c, mid(a, c), mid(b, c)], [mid(a, b), mid(b, c), mid(a, c)])
+        ]  # fmt: skip
+    return np.clip(np.array(vertices), -0.8, 0.8), np.array(faces)
+
+
+def test_compiled_images_equal_casting_every_ray_from_on_in_and_beside_boxes_and_meshes():
+    # Cameras flush against a box or a mesh's bounding box, a little inside or outside it,
+    # behind it, and looking along its faces and edges: the views where the kernel's culls
+    # (the box cut at the image plane, boxes behind the camera, rays entering a face, a
+    # camera inside a bounding sphere) decide most, each image bit for bit mj_multiRay's.
+    spec = load_scene_spec()
+    spec.delete(spec.body(ARM_BASE_BODY))
+    for key in list(spec.keys):
+        spec.delete(key)
+    vertices, faces = _icosphere(2)
+    spec.add_mesh(name="ball", uservert=(vertices * 0.05).ravel(), userface=faces.ravel())
+    things = spec.worldbody.add_body(name="things", mocap=True, pos=[0.45, 0.0, 0.1])
+    things.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.04, 0.03, 0.02], pos=[0, -0.1, 0])
+    things.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="ball", pos=[0, 0.1, 0])
+    rig = spec.worldbody.add_body(name="rig", mocap=True)
+    rig.add_camera(name="probe")
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mocap_things, mocap_rig = model.body("things").mocapid[0], model.body("rig").mocapid[0]
+    boxes = [model.geom("table_top").id, model.geom("table_leg_1").id] + [
+        g for g in range(model.ngeom) if model.geom_bodyid[g] == model.body("things").id
+    ]
+    rng = np.random.default_rng(7)
+    reference, compiled = _cameras(model, "probe", CameraIntrinsics(width=32, height=32))
+    shown = 0
+    for view in range(120):
+        quat = rng.normal(size=4)
+        data.mocap_quat[mocap_things] = quat / np.linalg.norm(quat)
+        mujoco.mj_kinematics(model, data)
+        geom = boxes[view % len(boxes)]
+        centre, half = model.geom_aabb[geom, :3], model.geom_aabb[geom, 3:]
+        rotation = data.geom_xmat[geom].reshape(3, 3)
+        # A point on a face of the geom's bounding box, moved along the face's normal by up to
+        # 2 mm either way, and a direction along that face (tilted a little) or anywhere.
+        axis, side = rng.integers(3), rng.choice([-1.0, 1.0])
+        local = rng.uniform(-1.0, 1.0, 3) * half
+        local[axis] = side * (half[axis] + rng.choice([0.0, 1e-4, -1e-4, 2e-3, -2e-3]))
+        normal = np.zeros(3)
+        normal[axis] = side
+        direction = rng.normal(size=3)
+        if view % 3:
+            direction -= normal * (direction @ normal)  # along the face
+            direction += normal * rng.choice([0.0, 0.02, -0.02, 0.5, -0.5])
+        eye = data.geom_xpos[geom] + rotation @ (centre + local)
+        direction = rotation @ direction
+        data.mocap_pos[mocap_rig] = eye
+        data.mocap_quat[mocap_rig] = look_at_quat(eye, eye + direction / np.linalg.norm(direction))
+        mujoco.mj_kinematics(model, data)
+        expected = reference.render(data)
+        np.testing.assert_array_equal(compiled.render(data), expected, err_msg=f"view {view}")
+        shown += bool((expected > 0).any())
+    reference.close()
+    compiled.close()
+    assert shown >= 50
+
+
 def test_an_env_with_the_compiled_backend_runs_the_raycast_episodes():
     # The same seeded episodes give the same observations, rewards and coverage.
     episodes = {}

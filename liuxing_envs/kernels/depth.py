@@ -5,24 +5,28 @@ Every intersection routine below is MuJoCo's own arithmetic (``src/engine/engine
 MuJoCo 4.0.0), operation for operation, so that each ray's distance is the same double:
 ``ray_map``, ``ray_quad``, ``ray_sphere``, ``ray_plane``, ``ray_capsule``,
 ``ray_ellipsoid``, ``ray_cylinder``, ``ray_box``, ``ray_triangle`` with its per-ray plane
-basis ``b0``/``b1``, the bounding-volume slab test ``mju_raySlab``, and the rule that keeps
-the nearest hit, ``newdist >= 0 && (newdist < dist || dist < 0)``. A minimum does not depend
-on the order in which hits are found, so the loops run geom by geom (nearest first) and, for
-meshes, triangle by triangle over only the pixels a triangle's vertices project to, where
-MuJoCo runs ray by ray through body spheres and bounding-volume trees. The culls of
-``mj_multiRay`` that can change a result through rounding are copied: a geom whose bounding
-sphere lies beyond the cut-off is left out, a body's bounding sphere (about the root box of
-its tree, ``bvh_aabb``, in its inertial frame ``xipos``/``ximat``; MuJoCo 3.12's source adds
-the box's centre unrotated, 4.0.0's results match the rotated centre) skips its geoms for
-rays that miss it, a mesh is
+basis ``b0``/``b1``, the bounding-volume slab test ``mju_raySlab``
+(:func:`ray_slab_inverse`), and the rule that keeps the nearest hit, ``newdist >= 0 &&
+(newdist < dist || dist < 0)``. A minimum does not depend on the order in which hits are
+found, so the loops run geom by geom (nearest first) and, for meshes, triangle by triangle
+over only the pixels a triangle's vertices project to, where MuJoCo runs ray by ray through
+body spheres and bounding-volume trees. The culls of ``mj_multiRay`` that can change a
+result through rounding are copied: a geom whose bounding sphere lies beyond the cut-off is
+left out, a body's bounding sphere (about the root box of its tree, ``bvh_aabb``, in its
+inertial frame ``xipos``/``ximat``; MuJoCo 3.12's source adds the box's centre unrotated,
+4.0.0's results match the rotated centre) skips its geoms for rays that miss it, a mesh is
 tested only by rays that meet its box (``ray_box`` on ``geom_size``), and a triangle's hit
 counts only where the slab tests of its leaf and every ancestor pass. The angular bounds of
 ``mju_multiRayPrepare`` are left out: they are conservative by a margin far above rounding.
 
 The rest of the speed comes from tests that cannot change a result: a ray is tested against
 a geom only inside the pixel window its bounding box projects to (widened by
-``WINDOW_MARGIN_PX``, taken only when every corner lies ``WINDOW_MIN_DEPTH`` in front of the
-camera) and only while the geom's bounding sphere may still hold a nearer hit.
+``WINDOW_MARGIN_PX``; of a box reaching behind the camera, the part ``WINDOW_MIN_DEPTH`` or
+more in front of it, where no ray meets it nearer; none for a box wholly behind it) and only
+while the geom's bounding sphere may still hold a nearer hit; a bounding sphere around the
+camera is not tested (:func:`misses_sphere`); a ray entering a box clear of a face's edges
+takes that face's distance (:func:`ray_box_from_outside`); a mesh's faces turned towards the
+camera are tested first, so that fewer hits behind them reach the tree's slab tests.
 
 All functions are ``numba.njit`` with :func:`liuxing_envs.kernels.jit_options` (no
 ``fastmath``); the model's arrays are passed in, nothing is read from globals.
@@ -46,6 +50,16 @@ MINVAL = 1e-15
 WINDOW_MARGIN_PX = 1e-3
 #: ... and taken only when every corner lies this many metres in front of the camera.
 WINDOW_MIN_DEPTH = 1e-3
+#: A box wholly this far (metres) behind the camera's image plane is met by no ray (each ray
+#: points in front of that plane): far above the rounding of the corners' depths.
+BEHIND_MARGIN = 1e-6
+#: A ray entering a box through a face, at this distance (metres, times the scale of the
+#: ray's origin and the box) or more from the face's edges, is cast against that face alone;
+#: so is the ray only where its slope into the face is at least ENTRY_MIN_SLOPE, and only on
+#: boxes no thinner than ENTRY_MIN_HALF_SIZE (see ray_box_from_outside).
+ENTRY_MARGIN = 1e-9
+ENTRY_MIN_SLOPE = 1e-3
+ENTRY_MIN_HALF_SIZE = 1e-6
 #: A geom is skipped for a ray whose hit so far is nearer than its bounding sphere by this
 #: much (metres, plus a relative 1e-9): far above rounding, far below any geom.
 SPHERE_SKIP_MARGIN = 1e-6
@@ -110,6 +124,15 @@ def ray_sphere(d0, d1, d2, c, vx, vy, vz):
     b = vx * d0 + vy * d1 + vz * d2
     x, _, _ = ray_quad(a, b, c)
     return x
+
+
+@njit
+def misses_sphere(d0, d1, d2, c, vx, vy, vz):
+    """Whether ``ray_sphere`` (offset of :func:`sphere_offset`) gives no hit. From inside the
+    sphere it always hits, so the test is left out where c < -MINVAL: for a unit ray (a = 1)
+    b*b - a*c then exceeds fl(b*b), and sqrt(fl(b*b)) = |b| in binary floating point (or b*b
+    is below MINVAL), so the larger root is never negative."""
+    return c >= -MINVAL and ray_sphere(d0, d1, d2, c, vx, vy, vz) < 0
 
 
 @njit
@@ -250,22 +273,64 @@ def ray_box(l0, l1, l2, w0, w1, w2, s0, s1, s2):
 
 
 @njit
-def ray_slab(c0, c1, c2, h0, h1, h2, s0, s1, s2, d0, d1, d2):
-    """``mju_raySlab`` of the box (centre c, half-sizes h) on a ray in its frame (s, d)."""
+def _beyond(li, si):
+    """The side (1 or -1) of the slab |x| <= si that ``li`` lies beyond, 0 within it."""
+    if li > si:
+        return 1
+    if li < -si:
+        return -1
+    return 0
+
+
+@njit
+def _entry_face(li, wi, si, ei, la, wa, sa, lb, wb, sb, margin):
+    """``ray_box``'s distance to the face ``ei`` of axis i, if the ray enters the box there
+    with ``margin`` to spare from the face's edges, else -1."""
+    if ei == 0 or not ei * wi < -ENTRY_MIN_SLOPE:
+        return -1.0
+    sol = (ei * si - li) / wi
+    if abs(la + sol * wa) <= sa - margin and abs(lb + sol * wb) <= sb - margin:
+        return sol
+    return -1.0
+
+
+@njit
+def ray_box_from_outside(l0, l1, l2, w0, w1, w2, s0, s1, s2, e0, e1, e2, margin):
+    """:func:`ray_box`'s result, found from the one face a ray enters by when it enters
+    clear of the face's edges. ``e0``, ``e1``, ``e2``: :func:`_beyond` of the ray's origin.
+
+    Then ``ray_box`` would return that face's distance, computed by the same expression:
+    the point there lies ``margin`` or more inside every other slab, so every other face's
+    plane is met at least ``margin`` (times the slope ENTRY_MIN_SLOPE) earlier, outside the
+    entered slab, or later, far beyond rounding either way. Other rays take ``ray_box``."""
+    x = _entry_face(l0, w0, s0, e0, l1, w1, s1, l2, w2, s2, margin)
+    if x >= 0:
+        return x
+    x = _entry_face(l1, w1, s1, e1, l0, w0, s0, l2, w2, s2, margin)
+    if x >= 0:
+        return x
+    x = _entry_face(l2, w2, s2, e2, l0, w0, s0, l1, w1, s1, margin)
+    if x >= 0:
+        return x
+    return ray_box(l0, l1, l2, w0, w1, w2, s0, s1, s2)
+
+
+@njit
+def ray_slab_inverse(c0, c1, c2, h0, h1, h2, s0, s1, s2, i0, i1, i2):
+    """``mju_raySlab`` of the box (centre c, half-sizes h) on a ray in its frame from s, given
+    the reciprocals ``1.0 / d`` of its direction d (MuJoCo's ``inv``): one division per axis
+    for a ray's whole walk up a mesh's tree."""
     tmin = 0.0
     tmax = np.inf
     for k in range(3):
         if k == 0:
-            c, h, s, d = c0, h0, s0, d0
+            c, h, s, inv = c0, h0, s0, i0
         elif k == 1:
-            c, h, s, d = c1, h1, s1, d1
+            c, h, s, inv = c1, h1, s1, i1
         else:
-            c, h, s, d = c2, h2, s2, d2
-        lo = c - h
-        hi = c + h
-        inv = 1.0 / d
-        t1 = (lo - s) * inv
-        t2 = (hi - s) * inv
+            c, h, s, inv = c2, h2, s2, i2
+        t1 = (c - h - s) * inv
+        t2 = (c + h - s) * inv
         minval = t1 if t1 < t2 else t2
         maxval = t2 if t1 < t2 else t1
         tmin = tmin if tmin > minval else minval
@@ -307,30 +372,97 @@ def triangle_basis(w0, w1, w2):
 
 
 @njit
-def _window(corners, rotation, position, fx, fy, cx, cy, height, width):
+def _window(corners, rotation, position, fx, fy, cx, cy, height, width, reach):
     """(first row, end row, first col, end col) of the pixels whose rays may meet the hull of
-    ``corners`` (world, (n, 3)); the whole image when a corner is not in front."""
+    the box ``corners`` (world, (8, 3), corner k at bits (x, y, z) of k, as
+    :func:`_box_corners` orders them). Only the part of the box at least WINDOW_MIN_DEPTH in
+    front of the camera is projected: ``reach`` (bool) says that no ray meets the box nearer
+    than that (see :func:`_box_beyond`); without it, a box reaching behind that depth gives
+    the whole image."""
+    depth = np.empty(8)
+    x = np.empty(8)
+    y = np.empty(8)
+    behind = False
+    for k in range(8):
+        o0 = corners[k, 0] - position[0]
+        o1 = corners[k, 1] - position[1]
+        o2 = corners[k, 2] - position[2]
+        x[k] = rotation[0, 0] * o0 + rotation[1, 0] * o1 + rotation[2, 0] * o2
+        y[k] = rotation[0, 1] * o0 + rotation[1, 1] * o1 + rotation[2, 1] * o2
+        depth[k] = -(rotation[0, 2] * o0 + rotation[1, 2] * o1 + rotation[2, 2] * o2)
+        if not depth[k] > WINDOW_MIN_DEPTH:
+            behind = True
     x_min = np.inf
     x_max = -np.inf
     y_min = np.inf
     y_max = -np.inf
-    for k in range(corners.shape[0]):
-        o0 = corners[k, 0] - position[0]
-        o1 = corners[k, 1] - position[1]
-        o2 = corners[k, 2] - position[2]
-        c0 = rotation[0, 0] * o0 + rotation[1, 0] * o1 + rotation[2, 0] * o2
-        c1 = rotation[0, 1] * o0 + rotation[1, 1] * o1 + rotation[2, 1] * o2
-        c2 = rotation[0, 2] * o0 + rotation[1, 2] * o1 + rotation[2, 2] * o2
-        depth = -c2
-        if not depth > WINDOW_MIN_DEPTH:
-            return 0, height, 0, width
-        x = c0 / depth
-        y = c1 / depth
-        x_min = min(x_min, x)
-        x_max = max(x_max, x)
-        y_min = min(y_min, y)
-        y_max = max(y_max, y)
-    return _clip_window(x_min, x_max, y_min, y_max, fx, fy, cx, cy, height, width)
+    if not behind:
+        for k in range(8):
+            x_min, x_max, y_min, y_max = _extend(
+                x_min, x_max, y_min, y_max, x[k] / depth[k], y[k] / depth[k]
+            )
+        return _clip_window(x_min, x_max, y_min, y_max, fx, fy, cx, cy, height, width)
+    deepest = depth.max()
+    if deepest < -BEHIND_MARGIN:
+        return 0, 0, 0, 0  # wholly behind the camera: every ray points away from it
+    if not reach:
+        return 0, height, 0, width
+    # The box cut at the depth WINDOW_MIN_DEPTH: its corners in front of the cut, and where
+    # its twelve edges cross it. Their projections bound the projection of the cut box.
+    found = False
+    for k in range(8):
+        if depth[k] >= WINDOW_MIN_DEPTH:
+            x_min, x_max, y_min, y_max = _extend(
+                x_min, x_max, y_min, y_max, x[k] / depth[k], y[k] / depth[k]
+            )
+            found = True
+        for bit in (1, 2, 4):
+            j = k | bit
+            if j == k:
+                continue
+            dk = depth[k] - WINDOW_MIN_DEPTH
+            dj = depth[j] - WINDOW_MIN_DEPTH
+            if (dk < 0.0) == (dj < 0.0):
+                continue
+            t = dk / (dk - dj)
+            x_min, x_max, y_min, y_max = _extend(
+                x_min,
+                x_max,
+                y_min,
+                y_max,
+                (x[k] + t * (x[j] - x[k])) / WINDOW_MIN_DEPTH,
+                (y[k] + t * (y[j] - y[k])) / WINDOW_MIN_DEPTH,
+            )
+            found = True
+    if not found:
+        return 0, 0, 0, 0  # wholly behind the cut, where no ray meets it
+    # Rounding of the cut points: widen by a relative 1e-9 of their extent
+    pad = 1e-9 * (abs(x_min) + abs(x_max) + abs(y_min) + abs(y_max) + 1.0)
+    return _clip_window(
+        x_min - pad, x_max + pad, y_min - pad, y_max + pad, fx, fy, cx, cy, height, width
+    )
+
+
+@njit
+def _extend(x_min, x_max, y_min, y_max, x, y):
+    """The bounds grown to take in (x, y)."""
+    return min(x_min, x), max(x_max, x), min(y_min, y), max(y_max, y)
+
+
+@njit
+def _box_beyond(pos, mat, aabb, position, distance):
+    """Whether the camera ``position`` lies more than ``distance`` from the geom's bounding
+    box (its ``aabb`` in the geom's frame ``pos``, ``mat``)."""
+    d0 = position[0] - pos[0]
+    d1 = position[1] - pos[1]
+    d2 = position[2] - pos[2]
+    gap2 = 0.0
+    for i in range(3):
+        local = mat[i] * d0 + mat[3 + i] * d1 + mat[6 + i] * d2 - aabb[i]
+        outside = abs(local) - aabb[3 + i]
+        if outside > 0.0:
+            gap2 += outside * outside
+    return gap2 > distance * distance
 
 
 @njit
@@ -410,8 +542,18 @@ def _cast_primitive(
     )  # fmt: skip
     s0, s1, s2 = size[0], size[1], size[2]
     l0, l1, l2 = map_point(pos, mat, px, py, pz)
+    if gtype == GEOM_PLANE:
+        _cast_plane(m0, m1, m3, m4, m6, m7, m2, m5, m8, l0, l1, l2, s0, s1, rays, dist, body)
+        return
     r2 = _bounding_sphere2(gtype, s0, s1, s2)
     g0, g1, g2, gc = sphere_offset(pos[0], pos[1], pos[2], r2, px, py, pz)
+    # The sides of the box's slabs the camera lies beyond (0: within the slab), for
+    # :func:`ray_box_from_outside`
+    e0 = _beyond(l0, s0)
+    e1 = _beyond(l1, s1)
+    e2 = _beyond(l2, s2)
+    margin = ENTRY_MARGIN * (1.0 + abs(l0) + abs(l1) + abs(l2) + s0 + s1 + s2)
+    from_outside = gtype == GEOM_BOX and min(s0, s1, s2) > ENTRY_MIN_HALF_SIZE
     for r in range(r0, r1):
         for c in range(c0, c1):
             p = r * width + c
@@ -419,17 +561,51 @@ def _cast_primitive(
             if d >= 0 and d < skip_below:
                 continue
             vx, vy, vz = rays[p, 0], rays[p, 1], rays[p, 2]
-            if has_body and ray_sphere(b0, b1, b2, bc, vx, vy, vz) < 0:
+            if has_body and misses_sphere(b0, b1, b2, bc, vx, vy, vz):
                 continue
             if gtype == GEOM_SPHERE:
                 newdist = ray_sphere(g0, g1, g2, gc, vx, vy, vz)
             else:
-                if r2 >= 0 and ray_sphere(g0, g1, g2, gc, vx, vy, vz) < 0:
+                if r2 >= 0 and misses_sphere(g0, g1, g2, gc, vx, vy, vz):
                     continue
                 w0, w1, w2 = map_vector(m0, m1, m2, m3, m4, m5, m6, m7, m8, vx, vy, vz)
-                newdist = _primitive(gtype, l0, l1, l2, w0, w1, w2, s0, s1, s2)
+                if from_outside:
+                    newdist = ray_box_from_outside(
+                        l0, l1, l2, w0, w1, w2, s0, s1, s2, e0, e1, e2, margin
+                    )
+                else:
+                    newdist = _primitive(gtype, l0, l1, l2, w0, w1, w2, s0, s1, s2)
             if newdist >= 0 and (newdist < d or d < 0):
                 dist[p] = newdist
+
+
+@njit
+def _cast_plane(m0, m1, m3, m4, m6, m7, m2, m5, m8, l0, l1, l2, s0, s1, rays, dist, body):
+    """:func:`ray_plane` for every ray, its direction mapped one component at a time: the
+    normal's first, as most rays leave there. The same expressions as :func:`map_vector`,
+    so the same doubles."""
+    has_body, b0, b1, b2, bc = body
+    bounded = s0 > 0 or s1 > 0
+    for p in range(dist.shape[0]):
+        vx, vy, vz = rays[p, 0], rays[p, 1], rays[p, 2]
+        if has_body and misses_sphere(b0, b1, b2, bc, vx, vy, vz):
+            continue
+        w2 = m2 * vx + m5 * vy + m8 * vz
+        if w2 > -MINVAL:
+            continue
+        x = -l2 / w2
+        if x < 0:
+            continue
+        if bounded:
+            w0 = m0 * vx + m3 * vy + m6 * vz
+            w1 = m1 * vx + m4 * vy + m7 * vz
+            if not (s0 <= 0 or abs(l0 + x * w0) <= s0):
+                continue
+            if not (s1 <= 0 or abs(l1 + x * w1) <= s1):
+                continue
+        d = dist[p]
+        if x < d or d < 0:
+            dist[p] = x
 
 
 @njit
@@ -476,6 +652,11 @@ def _cast_mesh(
     s0, s1, s2 = size[0], size[1], size[2]
     l0, l1, l2 = map_point(pos, mat, px, py, pz)
     g0, g1, g2, gc = sphere_offset(pos[0], pos[1], pos[2], s0 * s0 + s1 * s1 + s2 * s2, px, py, pz)
+    e0 = _beyond(l0, s0)
+    e1 = _beyond(l1, s1)
+    e2 = _beyond(l2, s2)
+    margin = ENTRY_MARGIN * (1.0 + abs(l0) + abs(l1) + abs(l2) + s0 + s1 + s2)
+    from_outside = min(s0, s1, s2) > ENTRY_MIN_HALF_SIZE
     ready[:] = 0
     any_ready = False
     for r in range(r0, r1):
@@ -485,13 +666,17 @@ def _cast_mesh(
             if d >= 0 and d < skip_below:
                 continue
             vx, vy, vz = rays[p, 0], rays[p, 1], rays[p, 2]
-            if has_body and ray_sphere(b0, b1, b2, bc, vx, vy, vz) < 0:
+            if has_body and misses_sphere(b0, b1, b2, bc, vx, vy, vz):
                 continue
             # mj_rayMesh's ray_box on geom_size, then mju_rayTree's ray_map and basis
-            if ray_sphere(g0, g1, g2, gc, vx, vy, vz) < 0:
+            if misses_sphere(g0, g1, g2, gc, vx, vy, vz):
                 continue
             w0, w1, w2 = map_vector(m0, m1, m2, m3, m4, m5, m6, m7, m8, vx, vy, vz)
-            if ray_box(l0, l1, l2, w0, w1, w2, s0, s1, s2) < 0:
+            if from_outside:
+                box = ray_box_from_outside(l0, l1, l2, w0, w1, w2, s0, s1, s2, e0, e1, e2, margin)
+            else:
+                box = ray_box(l0, l1, l2, w0, w1, w2, s0, s1, s2)
+            if box < 0:
                 continue
             e0, e1, e2, f0, f1, f2 = triangle_basis(w0, w1, w2)
             ray_local[p, 0] = w0
@@ -525,13 +710,38 @@ def _cast_mesh(
         vertex_px[k, 0] = q0 / depth
         vertex_px[k, 1] = q1 / depth
     fadr = mesh_faceadr[mesh]
-    for f in range(mesh_facenum[mesh]):
+    # Two sweeps, the faces turned towards the camera first: the nearest hit is then mostly
+    # found first, and the faces behind it fail the distance test before the tree's slab
+    # tests. The nearest hit does not depend on the order.
+    for f in range(2 * mesh_facenum[mesh]):
+        front_sweep = f < mesh_facenum[mesh]
+        if not front_sweep:
+            f -= mesh_facenum[mesh]
         leaf = face_leaf[fadr + f]
         if leaf < 0:
             continue  # in no leaf of the tree: MuJoCo never tests it
         i0 = mesh_face[fadr + f, 0]
         i1 = mesh_face[fadr + f, 1]
         i2 = mesh_face[fadr + f, 2]
+        # ray_triangle's per-triangle part: vertices (float to double), v - lpnt, the plane
+        v00 = np.float64(mesh_vert[vadr + i0, 0])
+        v01 = np.float64(mesh_vert[vadr + i0, 1])
+        v02 = np.float64(mesh_vert[vadr + i0, 2])
+        v10 = np.float64(mesh_vert[vadr + i1, 0])
+        v11 = np.float64(mesh_vert[vadr + i1, 1])
+        v12 = np.float64(mesh_vert[vadr + i1, 2])
+        v20 = np.float64(mesh_vert[vadr + i2, 0])
+        v21 = np.float64(mesh_vert[vadr + i2, 1])
+        v22 = np.float64(mesh_vert[vadr + i2, 2])
+        g00, g01, g02 = v00 - v20, v01 - v21, v02 - v22
+        g10, g11, g12 = v10 - v20, v11 - v21, v12 - v22
+        h0, h1, h2 = l0 - v20, l1 - v21, l2 - v22
+        n0 = g01 * g12 - g02 * g11
+        n1 = g02 * g10 - g00 * g12
+        n2 = g00 * g11 - g01 * g10
+        numerator = -(h0 * n0 + h1 * n1 + h2 * n2)
+        if (numerator > 0) != front_sweep:
+            continue
         if vertex_px[i0, 2] > 0 and vertex_px[i1, 2] > 0 and vertex_px[i2, 2] > 0:
             x_min = min(vertex_px[i0, 0], vertex_px[i1, 0], vertex_px[i2, 0])
             x_max = max(vertex_px[i0, 0], vertex_px[i1, 0], vertex_px[i2, 0])
@@ -546,26 +756,9 @@ def _cast_mesh(
             t_r0, t_r1, t_c0, t_c1 = r0, r1, c0, c1
         if t_r0 >= t_r1 or t_c0 >= t_c1:
             continue
-        # ray_triangle's per-triangle part: vertices (float to double), v - lpnt, the plane
-        v00 = np.float64(mesh_vert[vadr + i0, 0])
-        v01 = np.float64(mesh_vert[vadr + i0, 1])
-        v02 = np.float64(mesh_vert[vadr + i0, 2])
-        v10 = np.float64(mesh_vert[vadr + i1, 0])
-        v11 = np.float64(mesh_vert[vadr + i1, 1])
-        v12 = np.float64(mesh_vert[vadr + i1, 2])
-        v20 = np.float64(mesh_vert[vadr + i2, 0])
-        v21 = np.float64(mesh_vert[vadr + i2, 1])
-        v22 = np.float64(mesh_vert[vadr + i2, 2])
         d00, d01, d02 = v00 - l0, v01 - l1, v02 - l2
         d10, d11, d12 = v10 - l0, v11 - l1, v12 - l2
         d20, d21, d22 = v20 - l0, v21 - l1, v22 - l2
-        g00, g01, g02 = v00 - v20, v01 - v21, v02 - v22
-        g10, g11, g12 = v10 - v20, v11 - v21, v12 - v22
-        h0, h1, h2 = l0 - v20, l1 - v21, l2 - v22
-        n0 = g01 * g12 - g02 * g11
-        n1 = g02 * g10 - g00 * g12
-        n2 = g00 * g11 - g01 * g10
-        numerator = -(h0 * n0 + h1 * n1 + h2 * n2)
         for r in range(t_r0, t_r1):
             for c in range(t_c0, t_c1):
                 p = r * width + c
@@ -608,8 +801,9 @@ def _cast_mesh(
                 # of every ancestor in the mesh's tree
                 node = leaf
                 reached = True
+                i0, i1, i2 = 1.0 / w0, 1.0 / w1, 1.0 / w2
                 while node >= 0:
-                    if not ray_slab(
+                    if not ray_slab_inverse(
                         bvh_aabb[node, 0],
                         bvh_aabb[node, 1],
                         bvh_aabb[node, 2],
@@ -619,9 +813,9 @@ def _cast_mesh(
                         l0,
                         l1,
                         l2,
-                        w0,
-                        w1,
-                        w2,
+                        i0,
+                        i1,
+                        i2,
                     ):
                         reached = False
                         break
@@ -679,8 +873,13 @@ def cast_image(
     data's poses, the mesh tables of :func:`mesh_tables` and scratch space."""
     npix = height * width
     px, py, pz = position[0], position[1], position[2]
+    cos_min = 1.0
     for p in range(npix):
         dist[p] = -1.0
+        cos_min = min(cos_min, cos_axis[p])
+    # A ray meets a box this far from the camera, or farther, no nearer to the image plane
+    # than WINDOW_MIN_DEPTH (its depth is its distance times its cos_axis).
+    cut_distance = WINDOW_MIN_DEPTH / cos_min * (1.0 + 1e-6) + 1e-9 if cos_min > 0 else np.inf
     # mju_multiRayPrepare's cut-off, and a lower bound on each geom's distance
     count = geoms.shape[0]
     kept = np.empty(count, dtype=np.int64)
@@ -730,7 +929,10 @@ def cast_image(
             r0, r1, c0, c1 = 0, height, 0, width
         else:
             _box_corners(pos, mat, geom_aabb[g], corners)
-            r0, r1, c0, c1 = _window(corners, rotation, position, fx, fy, cx, cy, height, width)
+            reach = _box_beyond(pos, mat, geom_aabb[g], position, cut_distance)
+            r0, r1, c0, c1 = _window(
+                corners, rotation, position, fx, fy, cx, cy, height, width, reach
+            )
         if r0 >= r1 or c0 >= c1:
             continue
         if gtype == GEOM_MESH:

@@ -9,8 +9,8 @@ Interchangeable backends produce the same depth image:
   image of :func:`mujoco.mj_multiRay`, bit for bit. No GL needed; geoms are intersected
   analytically (GL draws curved primitives as tessellated meshes, so the two can differ by a
   fraction of a millimetre on spheres and cylinders). Cast by a compiled kernel where numba
-  is installed (:class:`~liuxing_envs.sim.depth_backends.CompiledBackend`, about twice as
-  fast), else as ``"multiray"``.
+  is installed (:class:`~liuxing_envs.sim.depth_backends.CompiledBackend`, several times
+  as fast), else as ``"multiray"``.
 * ``"multiray"``: the same image from :func:`mujoco.mj_multiRay` itself, with no numba; in a
   tabletop scene, rays that can only land on the table top are solved in numpy with MuJoCo's
   arithmetic (:class:`~liuxing_envs.sim.depth_backends.TableShortcut`; the image is
