@@ -4,7 +4,9 @@ One pass over a view's points: each point's cell, its row in a dense table of th
 cells, then a distance test against every sample registered in that cell that is not
 covered yet. The arithmetic is the numpy reference's (``_hits_grid``): the cell is
 ``floor((p - origin) * inv_cell)`` and the squared distance sums x, y, z in that order, so the
-same samples are covered; the gain is a count, so it is exact.
+same samples are covered; the gain is a count, so it is exact. A cell whose registered
+samples are all covered is marked clear, and later points in it are not tested again: most
+points of a view fall where earlier views covered everything.
 """
 
 from __future__ import annotations
@@ -17,11 +19,23 @@ from liuxing_envs.kernels import jit_options
 
 @njit(**jit_options())
 def cover(
-    points, origin, inv_cell, dims, strides, cell_slot, cell_ptr, cell_samples, samples, eps2, done
+    points,
+    origin,
+    inv_cell,
+    dims,
+    strides,
+    cell_slot,
+    cell_ptr,
+    cell_samples,
+    samples,
+    eps2,
+    done,
+    clear,
 ):
     """Mark in ``done`` every sample of ``samples`` (N, 3) within ``sqrt(eps2)`` of a point of
     ``points`` (P, 3); return how many samples this newly marked. ``cell_slot`` maps a cell's
-    linear index to its row of ``cell_ptr`` (-1: no sample registered there)."""
+    linear index to its row of ``cell_ptr`` (-1: no sample registered there); ``clear`` (one
+    per row, uint8) marks the cells found with every registered sample done."""
     gained = 0
     for p in range(points.shape[0]):
         key = 0
@@ -35,8 +49,9 @@ def cover(
         if not inside:
             continue
         slot = cell_slot[key]
-        if slot < 0:
+        if slot < 0 or clear[slot]:
             continue
+        pending = 0
         for entry in range(cell_ptr[slot], cell_ptr[slot + 1]):
             sample = np.intp(cell_samples[entry])
             if done[sample]:
@@ -50,4 +65,8 @@ def cover(
             if d2 <= eps2:
                 done[sample] = True
                 gained += 1
+            else:
+                pending += 1
+        if pending == 0:
+            clear[slot] = 1
     return gained

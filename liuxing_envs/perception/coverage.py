@@ -158,12 +158,18 @@ class CoverageTracker:
         self._num_covered = 0
         # kdtree: indices of the observable samples still uncovered, compacted as they go.
         self._remaining = np.flatnonzero(self._inner_observable)
+        # compiled: the grid's cells found with every registered sample covered.
+        self._cells_clear = (
+            np.zeros(self._cell_keys.size, dtype=np.uint8) if self._compiled_update else None
+        )
 
     def __deepcopy__(self, memo: dict) -> CoverageTracker:
         """A copy of the scan so far that shares the read-only set-up, as :meth:`fresh` does."""
         tracker = copy.copy(self)
         tracker._done = self._done.copy()
         tracker._remaining = self._remaining.copy()
+        if self._cells_clear is not None:
+            tracker._cells_clear = self._cells_clear.copy()
         memo[id(self)] = tracker
         return tracker
 
@@ -208,7 +214,7 @@ class CoverageTracker:
         if points.shape[0] == 0 or self._num_covered == self.num_observable:
             return 0.0
         if self._compiled_update:
-            gained = self._cover_compiled(points, self._done)
+            gained = self._cover_compiled(points, self._done, self._cells_clear)
             self._num_done += gained
             self._num_covered += gained
             return gained / self.num_observable
@@ -231,7 +237,8 @@ class CoverageTracker:
         if points.shape[0] == 0 or self._num_covered == self.num_observable:
             return 0.0
         if self._compiled_update:
-            return self._cover_compiled(points, self._done.copy()) / self.num_observable
+            gained = self._cover_compiled(points, self._done.copy(), self._cells_clear.copy())
+            return gained / self.num_observable
         hits = self._hits_kdtree(points) if self.method == "kdtree" else self._hits_grid(points)
         # Both methods only return not-yet-covered samples, possibly repeated.
         return int(np.unique(hits).size) / self.num_observable
@@ -305,7 +312,7 @@ class CoverageTracker:
             self._cell_slot = np.full(num_cells, -1, dtype=np.int32)
             self._cell_slot[self._cell_keys] = np.arange(self._cell_keys.size, dtype=np.int32)
 
-    def _cover_compiled(self, points: np.ndarray, done: np.ndarray) -> int:
+    def _cover_compiled(self, points: np.ndarray, done: np.ndarray, clear: np.ndarray) -> int:
         from liuxing_envs.kernels.coverage import cover
 
         return cover(
@@ -320,6 +327,7 @@ class CoverageTracker:
             self._inner_samples,
             self._eps2,
             done,
+            clear,
         )
 
     def _hits_grid(self, points: np.ndarray) -> np.ndarray:
