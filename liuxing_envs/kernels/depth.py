@@ -283,6 +283,16 @@ def _beyond(li, si):
 
 
 @njit
+def _entry_setup(l0, l1, l2, s0, s1, s2):
+    """What :func:`ray_box_from_outside` needs of a box (half-sizes s) seen from l in its
+    frame: the slab sides l lies beyond (:func:`_beyond`), the edge margin, and whether the
+    box is thick enough for it."""
+    margin = ENTRY_MARGIN * (1.0 + abs(l0) + abs(l1) + abs(l2) + s0 + s1 + s2)
+    thick = min(s0, s1, s2) > ENTRY_MIN_HALF_SIZE
+    return _beyond(l0, s0), _beyond(l1, s1), _beyond(l2, s2), margin, thick
+
+
+@njit
 def _entry_face(li, wi, si, ei, la, wa, sa, lb, wb, sb, margin):
     """``ray_box``'s distance to the face ``ei`` of axis i, if the ray enters the box there
     with ``margin`` to spare from the face's edges, else -1."""
@@ -547,13 +557,8 @@ def _cast_primitive(
         return
     r2 = _bounding_sphere2(gtype, s0, s1, s2)
     g0, g1, g2, gc = sphere_offset(pos[0], pos[1], pos[2], r2, px, py, pz)
-    # The sides of the box's slabs the camera lies beyond (0: within the slab), for
-    # :func:`ray_box_from_outside`
-    e0 = _beyond(l0, s0)
-    e1 = _beyond(l1, s1)
-    e2 = _beyond(l2, s2)
-    margin = ENTRY_MARGIN * (1.0 + abs(l0) + abs(l1) + abs(l2) + s0 + s1 + s2)
-    from_outside = gtype == GEOM_BOX and min(s0, s1, s2) > ENTRY_MIN_HALF_SIZE
+    e0, e1, e2, margin, from_outside = _entry_setup(l0, l1, l2, s0, s1, s2)
+    from_outside = from_outside and gtype == GEOM_BOX
     for r in range(r0, r1):
         for c in range(c0, c1):
             p = r * width + c
@@ -652,11 +657,7 @@ def _cast_mesh(
     s0, s1, s2 = size[0], size[1], size[2]
     l0, l1, l2 = map_point(pos, mat, px, py, pz)
     g0, g1, g2, gc = sphere_offset(pos[0], pos[1], pos[2], s0 * s0 + s1 * s1 + s2 * s2, px, py, pz)
-    e0 = _beyond(l0, s0)
-    e1 = _beyond(l1, s1)
-    e2 = _beyond(l2, s2)
-    margin = ENTRY_MARGIN * (1.0 + abs(l0) + abs(l1) + abs(l2) + s0 + s1 + s2)
-    from_outside = min(s0, s1, s2) > ENTRY_MIN_HALF_SIZE
+    e0, e1, e2, margin, from_outside = _entry_setup(l0, l1, l2, s0, s1, s2)
     ready[:] = 0
     any_ready = False
     for r in range(r0, r1):
@@ -801,7 +802,7 @@ def _cast_mesh(
                 # of every ancestor in the mesh's tree
                 node = leaf
                 reached = True
-                i0, i1, i2 = 1.0 / w0, 1.0 / w1, 1.0 / w2
+                inv0, inv1, inv2 = 1.0 / w0, 1.0 / w1, 1.0 / w2
                 while node >= 0:
                     if not ray_slab_inverse(
                         bvh_aabb[node, 0],
@@ -813,9 +814,9 @@ def _cast_mesh(
                         l0,
                         l1,
                         l2,
-                        i0,
-                        i1,
-                        i2,
+                        inv0,
+                        inv1,
+                        inv2,
                     ):
                         reached = False
                         break
