@@ -252,3 +252,34 @@ def test_episodes_are_the_same_with_the_kernels_off(observe_free_space):
     finally:
         for env in envs:
             env.close()
+
+
+def test_self_filter_kernel_finds_the_pixels_numpy_finds_on_views_that_show_the_arm():
+    # Views from random joint poses about home, many with links of the arm in sight. With
+    # no margin the returns on a link lie on its surface, where the kernel leaves the
+    # answer to the numpy code.
+    env = ViewPlanningEnv(**FAST)
+    rng = np.random.default_rng(11)
+    scene = env.scene
+    found = {}
+
+    def look():
+        depth = scene.render_depth(None)
+        for margin in (ARM_FILTER_MARGIN, 0.0, 0.02):
+            masks = [
+                scene.camera.pixels_on_geoms(
+                    depth, scene.data, scene.arm.geom_ids, margin, compiled=compiled
+                )
+                for compiled in (True, False)
+            ]
+            assert_same_bits(*masks, f"margin {margin}")
+            found[margin] = found.get(margin, 0) + int(masks[1].any())
+
+    try:
+        for episode in range(4):
+            env.reset(seed=episode)
+            for _ in range(10):
+                scene.look_from(HOME_QPOS + rng.uniform(-1.0, 1.0, HOME_QPOS.size), look)
+    finally:
+        env.close()
+    assert min(found.values()) >= 8  # views with the arm's pixels, at every margin

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.perception.pointcloud import (
     camera_rays,
     check_depth,
@@ -544,8 +545,6 @@ class DepthCamera:
     def _exact_ray_caster(args) -> DepthBackend:
         """``"raycast"``: the compiled kernel where numba is installed, else mj_multiRay (the
         same image)."""
-        from liuxing_envs import kernels
-
         return CompiledBackend(*args) if kernels.available() else RaycastBackend(*args)
 
     # -- rendering --
@@ -605,23 +604,55 @@ class DepthCamera:
         return self._frustum.may_reach(self.model, data, geom_ids, position, rotation)
 
     def pixels_on_geoms(
-        self, depth: np.ndarray, data: mujoco.MjData, geom_ids: np.ndarray, margin: float
+        self,
+        depth: np.ndarray,
+        data: mujoco.MjData,
+        geom_ids: np.ndarray,
+        margin: float,
+        *,
+        compiled: bool | None = None,
     ) -> np.ndarray:
         """``(height, width)`` bool: the pixels of ``depth`` (rendered at ``data``'s state)
         whose return lies on one of ``geom_ids`` or within ``margin`` metres of it: a robot's
         self-filter, which finds its own links in its camera's image. Spheres, capsules,
         cylinders and boxes are tested exactly, other geoms by their bounding box. Only the
         geoms whose bounding sphere meets the field of view, and only the pixels their box
-        projects to, are tested."""
+        projects to, are tested.
+
+        ``compiled`` (default: where numba is installed) runs the kernel of
+        :mod:`liuxing_envs.kernels.geom_pixels` on a float32 image, which gives the numpy
+        code's answer bit for bit; False runs the numpy code."""
         depth = check_depth(depth, self.intrinsics)
-        on_geoms = np.zeros(depth.shape, dtype=bool)
         ids = np.asarray(geom_ids, dtype=np.intp)
         position, rotation = self.pose(data)
+        if compiled is None:
+            compiled = self._frustum.compiled
+        elif compiled and not kernels.available():
+            raise ValueError("pixels_on_geoms(compiled=True) needs numba, which is not installed")
+        on_geoms = np.zeros(depth.shape, dtype=bool)
         # Most views show none of the robot: a geom whose box, grown by the margin, no ray
         # reaches has no return within the margin of it.
         ids = ids[self._frustum.may_reach(self.model, data, ids, position, rotation, margin)]
         if not ids.size:
             return on_geoms
+        if compiled and depth.dtype == np.float32:
+            from liuxing_envs.kernels.geom_pixels import pixels_on_geoms
+
+            grid, intrinsics = self._pixel_grid, self.intrinsics
+            decided = pixels_on_geoms(
+                depth, ids, data.geom_xpos, data.geom_xmat, self.model.geom_type,
+                self.model.geom_size, self.model.geom_aabb, self.model.geom_rbound, position,
+                rotation, self._frustum.planes, float(margin), float(intrinsics.min_depth),
+                float(intrinsics.max_depth), float(grid.fx), float(grid.fy), float(grid.cx),
+                float(grid.cy), grid.min_depth, grid.margin_px, on_geoms,
+            )  # fmt: skip
+            if decided:
+                return on_geoms
+            on_geoms[:] = False
+        return self._pixels_on_numpy(depth, data, ids, position, rotation, margin, on_geoms)
+
+    def _pixels_on_numpy(self, depth, data, ids, position, rotation, margin, on_geoms):
+        """:meth:`pixels_on_geoms` of the geoms ``ids`` the view may reach, by numpy."""
         # Then bounding spheres, the test whose survivors the pixels are checked against.
         centres = (data.geom_xpos[ids] - position) @ rotation
         radii = self.model.geom_rbound[ids] + margin

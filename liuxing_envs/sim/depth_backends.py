@@ -468,6 +468,11 @@ class PixelGrid:
     maps a direction in the camera frame to a pixel, to bound which pixels' rays can meet a
     box without testing every ray."""
 
+    #: How far (pixels) a window reaches beyond its corners' projections, and how far (m) in
+    #: front of the camera every corner must lie for a window to be taken.
+    margin_px = _WINDOW_MARGIN_PX
+    min_depth = _WINDOW_MIN_DEPTH
+
     def __init__(self, intrinsics: CameraIntrinsics) -> None:
         self.height, self.width = intrinsics.height, intrinsics.width
         self.fx, self.fy = intrinsics.fx, intrinsics.fy
