@@ -70,3 +70,43 @@ def cover(
         if pending == 0:
             clear[slot] = 1
     return gained
+
+
+@njit(**jit_options())
+def register(row_keys, neighbour_offsets, reach2, num_cells):
+    """The grid's registrations (the reference is ``CoverageTracker._build_grid``'s packed
+    sort): sample row ``i``, in cell ``row_keys[i]``, is registered in its neighbour cell
+    ``row_keys[i] + neighbour_offsets[j]`` where ``reach2[i, j] <= 1``. Returns the occupied
+    cells' keys (ascending), the CSR pointers into the rows registered in each (ascending by
+    row, as the packed sort orders them), those rows, and the dense table of each cell's
+    slot among the occupied ones (-1: none)."""
+    n, m = reach2.shape
+    count = np.zeros(num_cells, np.int64)
+    for i in range(n):
+        for j in range(m):
+            if reach2[i, j] <= 1.0:
+                count[row_keys[i] + neighbour_offsets[j]] += 1
+    occupied = 0
+    for key in range(num_cells):
+        occupied += count[key] > 0
+    keys = np.empty(occupied, np.int64)
+    ptr = np.empty(occupied + 1, np.int64)
+    slot = np.full(num_cells, -1, np.int32)
+    filled = 0
+    s = 0
+    for key in range(num_cells):
+        c = count[key]
+        if c > 0:
+            keys[s], ptr[s], slot[key] = key, filled, s
+            count[key] = filled  # from here on: where the cell's next row goes
+            filled += c
+            s += 1
+    ptr[occupied] = filled
+    rows = np.empty(filled, np.int64)
+    for i in range(n):
+        for j in range(m):
+            if reach2[i, j] <= 1.0:
+                key = row_keys[i] + neighbour_offsets[j]
+                rows[count[key]] = i
+                count[key] += 1
+    return keys, ptr, rows, slot

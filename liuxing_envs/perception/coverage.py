@@ -255,7 +255,15 @@ class CoverageTracker:
         """The samples' indices sorted by the grid cell they lie in (x, then y, then z)."""
         cell = self.epsilon * _CELL_INFLATION
         cells = np.floor((samples - self._grid_origin(samples[observable])) / cell)
-        return np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0]))
+        low = cells.min(axis=0)
+        spans = cells.max(axis=0) - low + 1
+        if float(np.prod(spans)) >= _MAX_CELLS:
+            return np.lexsort((cells[:, 2], cells[:, 1], cells[:, 0]))
+        # The cells' row-major index, stably sorted: lexsort's order, several times sooner.
+        index = (cells - low).astype(np.int64) @ np.array(
+            [spans[1] * spans[2], spans[2], 1], np.int64
+        )
+        return np.argsort(index, kind="stable")
 
     def _build_grid(self) -> None:
         eps = self.epsilon
@@ -278,6 +286,21 @@ class CoverageTracker:
         # cell, per axis and in cells: 0 (same slab), frac² (below), (1-frac)² (above).
         frac = scaled - cells
         reach2 = frac**2 @ _BELOW + (1.0 - frac) ** 2 @ _ABOVE  # (n, 27)
+        num_cells = int(np.prod(dims))
+        # CSR over the occupied cells: the samples registered in cell _cell_keys[i] are
+        # _cell_samples[_cell_ptr[i]:_cell_ptr[i + 1]], i.e. every sample that can lie within
+        # epsilon of a point in that cell; the compiled update looks cells up in a dense table.
+        # The narrowest integers that hold a sample index: a quarter of the memory to gather.
+        narrow = np.int16 if self.samples.shape[0] <= np.iinfo(np.int16).max else np.int32
+        self._cell_slot = None
+        if self.method == "compiled" and num_cells <= _MAX_DENSE_CELLS:
+            from liuxing_envs.kernels.coverage import register
+
+            self._cell_keys, self._cell_ptr, rows, self._cell_slot = register(
+                cells @ self._strides, _NEIGHBOURS @ self._strides, reach2, num_cells
+            )
+            self._cell_samples = ids[rows].astype(narrow)
+            return
         # Keys are linear in the cell index, so a neighbour's key is the cell's plus a constant.
         keys = (cells @ self._strides)[:, None] + (_NEIGHBOURS @ self._strides)[None]
         # One sort of (key, entry) packed in an int64 (entry = 32 * sample row + neighbour)
@@ -297,20 +320,10 @@ class CoverageTracker:
             keys = keys[reach]
             order = np.argsort(keys)
             keys, rows = keys[order], rows[order]
-        # CSR over the occupied cells: the samples registered in cell _cell_keys[i] are
-        # _cell_samples[_cell_ptr[i]:_cell_ptr[i + 1]], i.e. every sample that can lie within
-        # epsilon of a point in that cell.
         starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
         self._cell_keys = keys[starts]
         self._cell_ptr = np.append(starts, keys.size)
-        # The narrowest integers that hold a sample index: a quarter of the memory to gather.
-        narrow = np.int16 if self.samples.shape[0] <= np.iinfo(np.int16).max else np.int32
         self._cell_samples = ids[rows].astype(narrow)
-        num_cells = int(np.prod(dims))
-        self._cell_slot = None
-        if self.method == "compiled" and num_cells <= _MAX_DENSE_CELLS:
-            self._cell_slot = np.full(num_cells, -1, dtype=np.int32)
-            self._cell_slot[self._cell_keys] = np.arange(self._cell_keys.size, dtype=np.int32)
 
     def _cover_compiled(self, points: np.ndarray, done: np.ndarray, clear: np.ndarray) -> int:
         from liuxing_envs.kernels.coverage import cover
