@@ -285,6 +285,11 @@ def run(
             measured = training.throughput(env_id, algo, max(256, int(steps * scale)))
             results["training"]["throughput"].append({"env_id": env_id, "algo": algo, **measured})
             on_progress(results)
+        _progress("training: PPO before the kernels and now, side by side (default train.py)")
+        results["training"]["side_by_side"] = training.side_by_side(
+            512 if quick else training.default_ppo_steps(), 1
+        )
+        on_progress(results)
         _progress("training: time to beat the four-view baseline (default train.py)")
         results["training"]["time_to_beat"] = training.time_to_beat_four_view(
             512 if quick else None
@@ -407,6 +412,16 @@ def targets(results: dict) -> list[tuple]:
                 f"InstrumentGrasp-v1 state: >= {GRASP_PHYSICS_FRACTION:.0%} of its physics limit",
                 f"{fraction:.0%}",
                 fraction >= GRASP_PHYSICS_FRACTION,
+            )
+        )
+    paired = (results.get("training") or {}).get("side_by_side") or {}
+    if "speedup" in paired:
+        out.append(
+            (
+                "PPO training on ViewPlanning-v1, default train.py: env steps/s / the code "
+                f"before the kernels, side by side: >= {training.PPO_SPEEDUP_TARGET:.0f}x",
+                f"{paired['speedup']:.2f}x",
+                paired["speedup"] >= training.PPO_SPEEDUP_TARGET,
             )
         )
     scaled = results.get("scaling") or []
@@ -683,6 +698,25 @@ def report(results: dict, command: str) -> str:
                 for r in results["training"]["throughput"]
             ],
         )
+        paired = results["training"].get("side_by_side") or {}
+        if "speedup" in paired:
+            lines += [
+                f"Side by side (`benchmarks/training.py`): the default `python train.py` of "
+                f"commit {paired['before_commit'][:12]}, before the compiled kernels, and of "
+                f"this code, {paired['steps']} steps each in alternating runs.",
+                "",
+            ]
+            lines += _table(
+                ("code", "env steps/s per run", "speed-up of the medians"),
+                [
+                    ("before the kernels",
+                     ", ".join(f"{r:.0f}" for r in paired["before_steps_per_second"]), ""),
+                    ("now", ", ".join(f"{r:.0f}" for r in paired["now_steps_per_second"]),
+                     f"{paired['speedup']:.2f}x"),
+                ],
+            )  # fmt: skip
+        elif "skipped" in paired:
+            lines += [f"Side by side: not measured ({paired['skipped']}).", ""]
         beat = results["training"].get("time_to_beat")
         if beat:
             lines += [_time_to_beat(beat), ""]

@@ -9,6 +9,14 @@ run is bound by its learner rather than by its env.
 SAC runs with ``learning_starts=0``, so every step pays for its gradient update as in the
 rest of a long run (the YAMLs' warm-ups of random steps would be a third of a short one).
 
+Side by side: the default ``python train.py`` (PPO on ViewPlanning-v1) of the code before the
+compiled kernels (BEFORE_KERNELS, extracted from the repository's history) and of this code,
+each for this code's default budget (its ``ppo.yml``), in alternating rounds; the ratio of
+their env steps per second is the PPO training target's. Each side runs with its own
+defaults: before, ``ppo.yml``'s larger extractor and ``depth_backend="auto"`` (OpenGL); now,
+the leaner extractor, the raycast kernel and the batched vector env. Their held-out
+coverage is compared in ``reports/sweeps/view_planning_ppo_budgets/``, not here.
+
 Time to beat: the default ``python train.py`` (PPO, ViewPlanning-v1) cut to
 TIME_TO_BEAT_STEPS steps, whose periodic evaluation replays the same seeded episodes every
 ``eval_freq`` steps on its training objects. ``ppo.yml``'s learning rate decays to 0 over the
@@ -22,12 +30,16 @@ themselves).
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import subprocess
 import sys
+import tarfile
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -38,6 +50,11 @@ EVAL_FREQ = 1000
 #: The time-to-beat run's length: the default run's first steps (it beat the baseline within
 #: 6,000 in every measurement), not its whole 80,000.
 TIME_TO_BEAT_STEPS = 20_000
+#: The last commit before the compiled kernels, whose default PPO run the target is against.
+BEFORE_KERNELS = "f6594a5e9a192744f6c63a2503d3dc22dec98e49"
+#: PPO training on ViewPlanning-v1: at least this many times the env steps/s of before.
+PPO_SPEEDUP_TARGET = 3.0
+VIEW_PLANNING = "ViewPlanning-v1"
 #: (env id, algorithm, env steps): enough for a few policy updates past learning_starts.
 RUNS = (
     ("ViewPlanning-v1", "ppo", 2048),
@@ -47,9 +64,11 @@ RUNS = (
 )
 
 
-def _train(args: list[str], run_dir: Path) -> dict:
+def _train(args: list[str], run_dir: Path, tree: Path = REPO) -> dict:
+    """``train.py`` of the checkout ``tree`` with this interpreter; its result.json."""
     command = [sys.executable, "train.py", *args, "--run-dir", str(run_dir), "--no-progress-bar"]
-    done = subprocess.run(command, capture_output=True, text=True, cwd=REPO)
+    environment = {**os.environ, "PYTHONPATH": str(tree)}
+    done = subprocess.run(command, capture_output=True, text=True, cwd=tree, env=environment)
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(command)} failed:\n{done.stderr[-3000:]}")
     return json.loads((run_dir / "result.json").read_text())
@@ -72,6 +91,42 @@ def throughput(env_id: str, algo: str, steps: int) -> dict:
         "seconds": result["train_seconds"],
         "steps_per_second": result["timesteps"] / result["train_seconds"],
         "update_share": result["update_seconds"] / result["train_seconds"],
+    }
+
+
+def default_ppo_steps() -> int:
+    """The default run's budget: ViewPlanning-v1's ``n_timesteps`` in this code's ppo.yml."""
+    hyperparameters = _read_yaml(REPO / "agents" / "hyperparams" / "ppo.yml")
+    return int(hyperparameters[VIEW_PLANNING]["n_timesteps"])
+
+
+def side_by_side(steps: int, rounds: int) -> dict:
+    """Env steps/s of the default ``train.py`` before the kernels and now (see the module
+    docstring), ``rounds`` alternating runs of ``steps`` each; the ratio of the medians.
+    Where the repository's history lacks BEFORE_KERNELS (a shallow clone), says so instead."""
+    quiet = ("--eval-freq", "0", "--save-freq", "0", "--final-episodes", "0")
+    with tempfile.TemporaryDirectory() as folder:
+        before = Path(folder) / "before"
+        archive = subprocess.run(
+            ["git", "-C", str(REPO), "archive", BEFORE_KERNELS], capture_output=True, check=False
+        )
+        if archive.returncode != 0:
+            return {"skipped": f"git archive {BEFORE_KERNELS[:12]} failed: a shallow clone?"}
+        with tarfile.open(fileobj=io.BytesIO(archive.stdout)) as files:
+            files.extractall(before, filter="data")
+        rates: dict[str, list[float]] = {"before": [], "now": []}
+        for round_ in range(rounds):
+            for side, tree in (("before", before), ("now", REPO)):
+                run_dir = Path(folder) / f"{side}_{round_}"
+                result = _train(["-n", str(steps), *quiet], run_dir, tree)
+                rates[side].append(result["timesteps"] / result["train_seconds"])
+    medians = {side: float(np.median(values)) for side, values in rates.items()}
+    return {
+        "steps": steps,
+        "before_commit": BEFORE_KERNELS,
+        "before_steps_per_second": rates["before"],
+        "now_steps_per_second": rates["now"],
+        "speedup": medians["now"] / medians["before"],
     }
 
 
