@@ -33,7 +33,6 @@ WINDOW_GROWTH_PX = 1.0
 
 # MuJoCo's mjtGeom values of the geoms tested exactly (others by their bounding box).
 _SPHERE, _CAPSULE, _CYLINDER, _BOX = 2, 3, 5, 6
-_DECIDED, _UNDECIDED = 0, 1
 
 
 @njit(**jit_options())
