@@ -102,6 +102,19 @@ def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
         assert refused.returncode == 2 and message in refused.stderr
 
 
+@pytest.mark.long
+def test_ppo_side_by_side_trains_the_code_before_the_kernels_and_this_code():
+    from benchmarks import training
+
+    paired = training.side_by_side(256, 1)
+    if "skipped" in paired:  # a clone without the history, which CI's is not meant to be
+        pytest.skip(paired["skipped"])
+    (before,), (now,) = paired["before_steps_per_second"], paired["now_steps_per_second"]
+    assert before > 0 and now > 0
+    assert paired["speedup"] == pytest.approx(now / before)
+    assert paired["before_commit"] == training.BEFORE_KERNELS
+
+
 def test_quick_kernels_section_compares_each_kernel_and_a_view_step_with_mujoco(tmp_path):
     out = tmp_path / "RESULTS.md"
     run_script("-m", "benchmarks", "--quick", "--sections", "kernels", "--out", str(out))
