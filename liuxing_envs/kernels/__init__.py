@@ -2,7 +2,9 @@
 
 Each kernel lives in its own module of this package together with the helpers it calls:
 numba invalidates a function's on-disk cache only when the file that defines it changes, and
-it freezes module globals into the compiled code, so every tunable is passed as an argument.
+it freezes module globals into the compiled code, so every tunable is passed as an argument
+and a kernel reads nothing another module defines or decides (no other module's kernels, no
+constant computed from another module; ``tests/test_kernel_modules.py`` checks this).
 Every kernel has a reference in numpy or MuJoCo that it is tested against (equal results, or
 a stated bound), and the package works without numba: :func:`available` is then False and
 callers use their references.
