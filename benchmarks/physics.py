@@ -4,10 +4,13 @@ Each configuration runs in a fresh process. The env runs seeded random episodes 
 ``mj_step`` it makes is recorded (its model, the controls, the step count) from the state
 each episode starts in; :func:`mujoco.rollout.rollout` then replays those controls open
 loop, all substeps in C with no Python in between. The limit is env steps per second of that
-replay: what the env could reach if everything but physics were free. InstrumentGrasp
-switches noslip iterations on while a pad touches something; the replay switches them off
-throughout, so the limit is, if anything, optimistic, and the fraction conservative. (With
-random actions a pad almost never touches anything, so this changes little.) Each instrument
+replay: what the env could reach if everything but physics were free. The env's own rate is
+timed in the same process, replaying the same seeds and actions with nothing recorded, its
+rounds alternating with the replay's, so a machine whose speed drifts slows both alike.
+InstrumentGrasp switches noslip iterations on while a pad touches something; the replay
+switches them off throughout, so the limit is, if anything, optimistic, and the fraction
+conservative. (With random actions a pad almost never touches anything, so this changes
+little.) Each instrument
 has its own model, and each episode is replayed in its instrument's. The benchmark's envs
 draw no random masses or frictions (``mass_range`` and ``friction_range`` are off by
 default); with them on, every episode of an instrument would be replayed with its last
@@ -64,20 +67,35 @@ class _Recorder:
 
 
 def limit(config: Config, steps: int, repeats: int) -> dict:
-    """Env steps/s of the recorded physics replayed by rollout, and mj_steps per env step."""
+    """Env steps/s of the recorded physics replayed by rollout, mj_steps per env step, and the
+    env's own steps/s on the same episodes (each the median of ``repeats`` rounds)."""
     env = make_env(config)
     env.action_space.seed(0)
+    actions = [env.action_space.sample() for _ in range(steps)]
+
+    def run_env() -> float:
+        """Env steps/s of seeded episodes: reset(seed=0), then unseeded resets as they end."""
+        start = time.perf_counter()
+        env.reset(seed=0)
+        done = False
+        for action in actions:
+            if done:
+                env.reset()
+            _, _, terminated, truncated, _ = env.step(action)
+            done = terminated or truncated
+        return steps / (time.perf_counter() - start)
+
     recorder = _Recorder()
     env.reset(seed=0)
     done = False
-    for _ in range(steps):
+    for action in actions:
         if done:
             recorder.recording = False
             env.reset()
         if not recorder.recording:
             recorder.new_episode()
             recorder.recording = True
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        _, _, terminated, truncated, _ = env.step(action)
         done = terminated or truncated
     recorder.close()
     segments = recorder.segments
@@ -87,23 +105,35 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
     if substeps == 0:
         env.close()
         return {"mj_steps_per_env_step": 0.0, "mj_steps_per_second": None, "limit": None}
-    for segment in segments:
-        segment["model"].opt.noslip_iterations = 0  # see the module docstring
+    # The env's noslip setting is saved and put back around each replay (see the module
+    # docstring), so its own rounds run as they did while recorded.
+    noslip = {id(s["model"]): s["model"].opt.noslip_iterations for s in segments}
 
     def replay() -> float:
+        for segment in segments:
+            segment["model"].opt.noslip_iterations = 0
         start = time.perf_counter()
         for segment, control in zip(segments, controls, strict=True):
             model = segment["model"]
             rollout.rollout(model, data[id(model)], segment["state"][None], control[None])
-        return steps / (time.perf_counter() - start)
+        rate = steps / (time.perf_counter() - start)
+        for segment in segments:
+            segment["model"].opt.noslip_iterations = noslip[id(segment["model"])]
+        return rate
 
     replay()  # warm-up
-    rates = sorted(replay() for _ in range(repeats))
+    rates, env_rates = [], []
+    for _ in range(repeats):
+        rates.append(replay())
+        env_rates.append(run_env())
     env.close()
+    rates.sort()
+    env_rates.sort()
     return {
         "mj_steps_per_env_step": substeps / steps,
         "mj_steps_per_second": rates[len(rates) // 2] * substeps / steps,
         "limit": rates[len(rates) // 2],
+        "env_steps_per_second": env_rates[len(env_rates) // 2],
     }
 
 

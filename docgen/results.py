@@ -177,9 +177,17 @@ def speed_tables(results: dict) -> str:
         [[e["env_id"], e["mode"], _span(e), f"{e['mib']:.0f}"] for e in results["throughput"]],
     )
     physics = table(
-        ["env", "mode", "MuJoCo steps per env step", "limit, env steps/s"],
+        ["env", "mode", "MuJoCo steps per env step", "limit, env steps/s", "env / limit"],
         [
-            [e["env_id"], e["mode"], f"{e['mj_steps_per_env_step']:.0f}", f"{e['limit']:.0f}"]
+            [
+                e["env_id"],
+                e["mode"],
+                f"{e['mj_steps_per_env_step']:.0f}",
+                f"{e['limit']:.0f}",
+                f"{e['env_steps_per_second'] / e['limit']:.0%}"
+                if e.get("env_steps_per_second")
+                else "-",
+            ]
             for e in results["physics"]
         ],
     )

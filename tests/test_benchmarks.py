@@ -75,7 +75,12 @@ def test_quick_run_writes_time_split_and_physics_limit(tmp_path):
     assert limits["InstrumentGrasp-v1"]["mj_steps_per_env_step"] == pytest.approx(
         substeps, rel=0.05
     )
-    assert limits["InstrumentGrasp-v1"]["limit"] > 0
+    grasp_limit = limits["InstrumentGrasp-v1"]
+    assert grasp_limit["limit"] > 0 and grasp_limit["env_steps_per_second"] > 0
+    # The env runs everything its physics does and more: slower than the replay of it.
+    assert grasp_limit["env_steps_per_second"] < grasp_limit["limit"]
+    fraction = grasp_limit["env_steps_per_second"] / grasp_limit["limit"]
+    assert f"| {grasp_limit['env_steps_per_second']:.0f} | {fraction:.0%} |" in text
     # A dynamic view moves the arm under physics for hundreds of steps.
     assert limits["ViewPlanning-v1"]["mj_steps_per_env_step"] > 50
 
