@@ -283,3 +283,30 @@ def test_self_filter_kernel_finds_the_pixels_numpy_finds_on_views_that_show_the_
     finally:
         env.close()
     assert min(found.values()) >= 8  # views with the arm's pixels, at every margin
+
+
+def test_self_filter_kernel_leaves_a_geom_at_the_near_limit_to_numpy():
+    # A box whose grown far side ends a hair short of min_depth: numpy skips it, so returns
+    # nearer than min_depth (a hand-made image) on it are not the box's; a kernel that
+    # decided the cut without its band would mark them.
+    import mujoco
+
+    from liuxing_envs.sim.camera import DepthCamera
+
+    xml = """<mujoco><worldbody><camera name="eye" pos="0 0 0"/>
+    <geom name="box" type="box" size="0.03 0.05 0.02" pos="0 0 -0.3"/></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    camera = DepthCamera(model, "eye", backend="raycast")
+    margin, near = 0.003, camera.intrinsics.min_depth
+    image = np.full((camera.intrinsics.height, camera.intrinsics.width), near * 0.9, np.float32)
+    box = np.array([0])
+    masks = {}
+    for gap in (5e-10, 0.0, -5e-10, 1e-3, -1e-3):
+        model.geom_pos[0] = [0.0, 0.0, -(near - gap) + 0.02 + margin]
+        mujoco.mj_forward(model, data)
+        for compiled in (True, False):
+            masks[compiled] = camera.pixels_on_geoms(image, data, box, margin, compiled=compiled)
+        assert_same_bits(masks[True], masks[False], f"far side {gap} m short of min_depth")
+    assert masks[True].any()  # the last box reaches past min_depth and covers the image
+    camera.close()

@@ -82,7 +82,10 @@ def pixels_on_geoms(
                 corners[n, a] = w0 * rotation[0, a] + w1 * rotation[1, a] + w2 * rotation[2, a]
             d = -corners[n, 2]
             nearest, farthest = min(nearest, d), max(farthest, d)
-        if farthest < min_depth - DEPTH_BAND:
+        behind = _side(farthest - min_depth, DEPTH_BAND)
+        if behind == 0:
+            return False
+        if behind < 0:
             continue  # behind or at the optical centre (the wrist's own links)
         first_row, last_row, first_col, last_col = 0, height - 1, 0, width - 1
         if nearest > 2.0 * window_min_depth:
