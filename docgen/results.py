@@ -257,6 +257,32 @@ def _kernel_tables(kernels: dict | None) -> list[str]:
             ],
         ),
         "",
+        *_vector_table(kernels.get("vector_env") or []),
+    ]
+
+
+def _vector_table(runs: list[dict]) -> list[str]:
+    """ViewPlanning's own vector env: scene-steps/s against the reference's images/s."""
+    runs = [r for r in runs if "batched_to_reference" in r]
+    if not runs:
+        return []
+    return [
+        "ViewPlanning's own vector env (`gym.make_vec`), its scenes stepped in one process or "
+        "two, each run against the reference image cast in its rounds:",
+        "",
+        *table(
+            ["scenes", "processes", "ms per scene-step", "scene-steps/s / images/s"],
+            [
+                [
+                    str(r["num_envs"]),
+                    str(r["workers"]),
+                    f"{r['batched_ms_per_scene_step']:.2f}",
+                    f"{r['batched_to_reference']:.2f}×",
+                ]
+                for r in runs
+            ],
+        ),
+        "",
     ]
 
 

@@ -137,7 +137,14 @@ def test_quick_kernels_section_compares_each_kernel_and_a_view_step_with_mujoco(
         "depth image 64x64",
         "roll-free IK (24 rolls)",
     ]
-    assert [v["num_envs"] for v in measured["vector_env"]] == [1, 2]
+    runs = measured["vector_env"]
+    assert [(v["num_envs"], v["workers"]) for v in runs] == [(1, 1), (2, 2)]
+    for v in runs:
+        assert v["batched_to_reference"] == pytest.approx(
+            v["reference_ms"] / v["batched_ms_per_scene_step"]
+        )
+        row = f"| {v['num_envs']} | {v['workers']} | {v['batched_ms_per_scene_step']:.3f} |"
+        assert row in text
     assert 0 < measured["first_make"]["median_s"]
 
 
