@@ -6,7 +6,8 @@ each episode starts in; :func:`mujoco.rollout.rollout` then replays those contro
 loop, all substeps in C with no Python in between. The limit is env steps per second of that
 replay: what the env could reach if everything but physics were free. The env's own rate is
 timed in the same process, replaying the same seeds and actions with nothing recorded, its
-rounds alternating with the replay's, so a machine whose speed drifts slows both alike.
+rounds alternating with the replay's, and each round's ratio taken, so a machine whose speed
+drifts slows both alike.
 InstrumentGrasp switches noslip iterations on while a pad touches something; the replay
 switches them off throughout, so the limit is, if anything, optimistic, and the fraction
 conservative. (With random actions a pad almost never touches anything, so this changes
@@ -127,6 +128,9 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
         rates.append(replay())
         env_rates.append(run_env())
     env.close()
+    # Each round's env rate against the replay beside it, so that a drift between rounds
+    # cancels; the rates themselves are the medians of their rounds.
+    fractions = sorted(e / r for e, r in zip(env_rates, rates, strict=True))
     rates.sort()
     env_rates.sort()
     return {
@@ -134,6 +138,7 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
         "mj_steps_per_second": rates[len(rates) // 2] * substeps / steps,
         "limit": rates[len(rates) // 2],
         "env_steps_per_second": env_rates[len(env_rates) // 2],
+        "env_to_limit": fractions[len(fractions) // 2],
     }
 
 

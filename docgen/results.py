@@ -184,9 +184,7 @@ def speed_tables(results: dict) -> str:
                 e["mode"],
                 f"{e['mj_steps_per_env_step']:.0f}",
                 f"{e['limit']:.0f}",
-                f"{e['env_steps_per_second'] / e['limit']:.0%}"
-                if e.get("env_steps_per_second")
-                else "-",
+                f"{e['env_to_limit']:.0%}" if e.get("env_to_limit") else "-",
             ]
             for e in results["physics"]
         ],
