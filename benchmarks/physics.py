@@ -8,14 +8,15 @@ replay: what the env could reach if everything but physics were free. The env's 
 timed in the same process, replaying the same seeds and actions with nothing recorded, its
 rounds alternating with the replay's, and each round's ratio taken, so a machine whose speed
 drifts slows both alike.
+
 InstrumentGrasp switches noslip iterations on while a pad touches something; the replay
 switches them off throughout, so the limit is, if anything, optimistic, and the fraction
 conservative. (With random actions a pad almost never touches anything, so this changes
-little.) Each instrument
-has its own model, and each episode is replayed in its instrument's. The benchmark's envs
-draw no random masses or frictions (``mass_range`` and ``friction_range`` are off by
-default); with them on, every episode of an instrument would be replayed with its last
-episode's values, which does not change what a substep costs.
+little.) Each instrument has its own model, and each episode is replayed in its instrument's.
+The benchmark's envs draw no random masses or frictions (``mass_range`` and ``friction_range``
+are off by default); with them on, every episode of an instrument would be replayed with its
+last episode's values, which does not change what a substep costs.
+
 ViewPlanning-v1 steps physics only in ``motion="dynamic"``; in the default kinematic mode its
 MuJoCo work is ray casting, kinematics and collision checks, shown by the time split.
 """
