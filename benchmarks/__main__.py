@@ -339,23 +339,6 @@ def _find(rows: list[dict], **match) -> dict | None:
     return next((r for r in rows if all(r.get(k) == v for k, v in match.items())), None)
 
 
-def _env_rate(limit: dict, throughput_row: dict | None) -> float | None:
-    """The env's steps/s to set against its physics limit: timed beside the replay in the same
-    process; for a report measured before that was, the throughput section's median."""
-    if limit.get("env_steps_per_second"):
-        return limit["env_steps_per_second"]
-    return throughput_row["median"] if throughput_row else None
-
-
-def _env_to_limit(limit: dict, throughput_row: dict | None) -> float | None:
-    """The env's share of its physics limit: the median of the rounds' own ratios where they
-    were measured, else the ratio of the rates."""
-    if limit.get("env_to_limit"):
-        return limit["env_to_limit"]
-    env_rate = _env_rate(limit, throughput_row)
-    return env_rate / limit["limit"] if env_rate and limit.get("limit") else None
-
-
 def targets(results: dict) -> list[tuple]:
     """(target, measured, met) for every target whose inputs this run measured."""
     out = []
@@ -432,7 +415,7 @@ def targets(results: dict) -> list[tuple]:
             )
         )
     limit = _find(results.get("physics") or [], env_id=GRASP)
-    fraction = _env_to_limit(limit, grasp) if limit else None
+    fraction = limit.get("env_to_limit") if limit else None
     if fraction:
         out.append(
             (
@@ -610,11 +593,6 @@ def report(results: dict, command: str) -> str:
         ]
         rows = []
         for r in results["physics"]:
-            throughput_row = _find(
-                results.get("throughput") or [], env_id=r["env_id"], mode=r["mode"]
-            )
-            env_rate = _env_rate(r, throughput_row)
-            fraction = _number(_env_to_limit(r, throughput_row), ".0%")
             rows.append(
                 (
                     r["env_id"],
@@ -622,8 +600,8 @@ def report(results: dict, command: str) -> str:
                     _number(r.get("mj_steps_per_env_step"), ".1f"),
                     _number(r.get("mj_steps_per_second"), ".0f"),
                     _number(r.get("limit"), ".0f"),
-                    _number(env_rate, ".0f"),
-                    fraction,
+                    _number(r.get("env_steps_per_second"), ".0f"),
+                    _number(r.get("env_to_limit"), ".0%"),
                 )
             )
         lines += _table(

@@ -75,30 +75,25 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
     env.action_space.seed(0)
     actions = [env.action_space.sample() for _ in range(steps)]
 
-    def run_env() -> float:
-        """Env steps/s of seeded episodes: reset(seed=0), then unseeded resets as they end."""
+    def run_env(recorder: _Recorder | None = None) -> float:
+        """Env steps/s of seeded episodes: reset(seed=0), then unseeded resets as they end;
+        ``recorder`` records each episode's steps, not its resets."""
         start = time.perf_counter()
-        env.reset(seed=0)
-        done = False
-        for action in actions:
+        done = True
+        for step, action in enumerate(actions):
             if done:
-                env.reset()
+                if recorder is not None:
+                    recorder.recording = False
+                env.reset(seed=0 if step == 0 else None)
+                if recorder is not None:
+                    recorder.new_episode()
+                    recorder.recording = True
             _, _, terminated, truncated, _ = env.step(action)
             done = terminated or truncated
         return steps / (time.perf_counter() - start)
 
     recorder = _Recorder()
-    env.reset(seed=0)
-    done = False
-    for action in actions:
-        if done:
-            recorder.recording = False
-            env.reset()
-        if not recorder.recording:
-            recorder.new_episode()
-            recorder.recording = True
-        _, _, terminated, truncated, _ = env.step(action)
-        done = terminated or truncated
+    run_env(recorder)
     recorder.close()
     segments = recorder.segments
     data = {id(s["model"]): mujoco.MjData(s["model"]) for s in segments}
