@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Callable, Iterable, Iterator, Mapping, Set
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable, Mapping, Set
 
 import numpy as np
 
@@ -134,6 +133,19 @@ def option_angle(key, value) -> float:
 
 def as_action(action, shape: tuple[int, ...]) -> np.ndarray:
     """A continuous action as float64, or ValueError naming what is wrong with it."""
+    if type(action) is np.ndarray and action.dtype.kind == "f":  # a policy's: the usual
+        array = action.astype(np.float64, copy=False)
+    else:
+        array = _real_array(action, shape)
+    if array.shape != shape:
+        raise ValueError(f"action must have shape {shape}, got {array.shape}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"action must be finite, got {array.tolist()}")
+    return array
+
+
+def _real_array(action, shape: tuple[int, ...]) -> np.ndarray:
+    """``action`` as a float64 array if it holds real numbers only, or ValueError."""
     array = None
     try:
         # numpy would read strings ("0.5") as numbers and drop complex numbers' imaginary part.
@@ -143,10 +155,6 @@ def as_action(action, shape: tuple[int, ...]) -> np.ndarray:
         pass
     if array is None:
         raise ValueError(f"action must be {shape} real numbers, got {action!r}")
-    if array.shape != shape:
-        raise ValueError(f"action must have shape {shape}, got {array.shape}")
-    if not np.isfinite(array).all():
-        raise ValueError(f"action must be finite, got {array.tolist()}")
     return array
 
 
@@ -187,14 +195,9 @@ def refuse_if_closed(env) -> None:
         raise RuntimeError(f"{env_id}: step() after close(); reset() it first, or make a new env")
 
 
-@contextmanager
-def step_context(env, step: int, seed: int | None) -> Iterator[None]:
-    """Notes on any error raised inside: which env, which step of the episode, and the reset
-    seed that replays it. Python prints notes with the traceback, also from a vector env's
-    worker process, where the env would otherwise be anonymous."""
-    try:
-        yield
-    except Exception as error:
-        env_id = env.spec.id if env.spec is not None else type(env).__name__
-        error.add_note(f"in {env_id}, step {step} of the episode reset with seed={seed}")
-        raise
+def note_step_error(env, error: Exception, step: int, seed: int | None) -> None:
+    """Add to ``error``, raised inside ``env.step()``, which env, which step of the episode,
+    and the reset seed that replays it. Python prints notes with the traceback, also from a
+    vector env's worker process, where the env would otherwise be anonymous."""
+    env_id = env.spec.id if env.spec is not None else type(env).__name__
+    error.add_note(f"in {env_id}, step {step} of the episode reset with seed={seed}")

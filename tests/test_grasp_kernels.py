@@ -1,7 +1,9 @@
-"""The compiled one-pose closed-form IK (liuxing_envs.kernels.one_pose_ik) against its Python
-reference (ur_ik.solutions_of_one, then ArmIK.nearest_first_of_few): the same solutions in the
-same order, bit for bit, and InstrumentGrasp-v1 episodes that do not change when the kernel is
-switched off; and the grasp step's leaner bookkeeping against what it replaced."""
+"""The grasp step's kernels against their Python references, bit for bit: the one-pose
+closed-form IK (liuxing_envs.kernels.one_pose_ik against ur_ik.solutions_of_one, then
+ArmIK.nearest_first_of_few), the ee_delta target pose (kernels.tool_target against the
+controller's numpy) and the observation (kernels.grasp_observation against the sensor's
+Python); InstrumentGrasp-v1 episodes that do not change when the kernels are switched off;
+and the grasp step's leaner bookkeeping against what it replaced."""
 
 import gymnasium as gym
 import mujoco
@@ -147,7 +149,7 @@ def test_ik_queries_answer_the_same_with_the_kernel_on_and_off(arm):
 
 def set_compiled(env, compiled):
     for world in env.unwrapped._worlds.values():
-        world.arm.ik.compiled = compiled
+        world.compiled = compiled
 
 
 @pytest.mark.parametrize(
@@ -165,7 +167,7 @@ def test_grasp_episodes_are_the_same_with_the_kernel_on_and_off(obs_mode, force_
         kwargs["force_limit"] = force_limit
     envs = [gym.make("InstrumentGrasp-v1", **kwargs) for _ in range(2)]
     try:
-        assert envs[0].unwrapped.world.arm.ik.compiled is kernels.available()
+        assert envs[0].unwrapped.world.compiled is kernels.available()
         set_compiled(envs[1], False)
         rng = np.random.default_rng(8)
         steps = grasped = stopped = 0
@@ -227,5 +229,116 @@ def test_the_gripper_s_float_reads_and_slice_writes_match_the_arrays():
             assert gripper.commanded_opening() == ctrl[0] + ctrl[1]
         gripper.command(0.03)
         assert data.ctrl[gripper.finger_actuators].tolist() == [0.015, 0.015]
+    finally:
+        env.close()
+
+
+def random_arm_poses(world, rng, count):
+    """Put the live arm, ``count`` times, with its tool at a random point of (and around) the
+    workspace, pointing down at a random yaw, then each joint turned by up to 0.05 rad (as
+    the compliant arm tilts), its kinematics computed."""
+    low, high = world.workspace_lower - 0.03, world.workspace_upper + 0.03
+    placed = 0
+    while placed < count:
+        try:
+            world.place_tool(rng.uniform(low, high), rng.uniform(-np.pi, np.pi), 0.04, None)
+        except ValueError:  # out of the arm's reach
+            continue
+        qpos = world.arm.qpos + rng.uniform(-0.05, 0.05, 6)
+        world.data.qpos[world.arm.qpos_indices] = qpos
+        mujoco.mj_kinematics(world.model, world.data)
+        placed += 1
+        yield
+
+
+def test_the_ee_delta_set_point_is_the_same_with_the_kernels_on_and_off():
+    """Random arm poses (their tool centres in and out of the workspace) and actions (the
+    corners of the action box among them), whole and scaled moves."""
+    env = gym.make("InstrumentGrasp-v1")
+    try:
+        env.reset(seed=0)
+        world, controller = env.unwrapped.world, env.unwrapped.arm_controller
+        rng = np.random.default_rng(3)
+        answered = 0
+        for _ in random_arm_poses(world, rng, 150):
+            world.set_arm_ctrl(world.arm.qpos)
+            for scale in (1.0, 0.0, 0.37):
+                action = rng.choice([-1.0, 0.0, 1.0, rng.uniform(-1, 1)], size=4)
+                points = []
+                for compiled in (True, False):
+                    world.compiled = compiled
+                    points.append(controller.set_point(world, action, scale))
+                world.compiled = kernels.available()
+                assert (points[0] is None) == (points[1] is None)
+                if points[0] is not None:
+                    assert_same_bits(points[0], points[1])
+                    answered += 1
+        assert answered > 100
+    finally:
+        env.close()
+
+
+def test_the_observation_is_the_same_with_the_kernels_on_and_off():
+    """Random arm poses, and a handle along world y (its axis' x exactly 0, where the jaws'
+    yaw is pi/2 by definition)."""
+    env = gym.make("InstrumentGrasp-v1")
+    try:
+        env.reset(seed=1)
+        world, sensor = env.unwrapped.world, env.unwrapped.sensor
+        grasp_site = world.model.site("instrument/grasp").id
+        rng = np.random.default_rng(4)
+        for _ in random_arm_poses(world, rng, 60):
+            if rng.random() < 0.3:
+                world.data.site_xmat[grasp_site] = [0, -1, 0, 1, 0, 0, 0, 0, 1]
+            opening = float(rng.uniform(0.0, 0.08))
+            observations = []
+            for compiled in (True, False):
+                world.compiled = compiled
+                observations.append(sensor.observe(world, opening))
+            world.compiled = kernels.available()
+            assert_same_values(observations[0], observations[1], "observation")
+    finally:
+        env.close()
+
+
+def brute_force_approach(world, distance, min_gap):
+    """``approach_directions`` as it was: every pad against every instrument geom."""
+    model, data = world.model, world.data
+    geoms = np.flatnonzero(model.geom_bodyid == model.body("instrument/body").id)
+    fromto, near = np.zeros(6), []
+    for pad in world.gripper.pad_geoms:
+        nearest, toward = distance, None
+        for geom in geoms:
+            gap = mujoco.mj_geomDistance(model, data, pad, geom, nearest, fromto)
+            if gap < nearest:
+                nearest = gap
+                toward = (fromto[3:] - fromto[:3]) / gap if gap > 0 else None
+        if toward is not None and nearest >= min_gap:
+            near.append((pad, toward, nearest))
+    return near
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_approach_query_skips_only_pads_far_from_the_instrument(compiled):
+    """Along the expert's approaches and grasps of three instruments, with a wide and the
+    default distance: the bounding-sphere filter, by its kernel and by numpy, changes no
+    answer."""
+    env = gym.make("InstrumentGrasp-v1", instruments=["scalpel", "scissors", "retractor"])
+    set_compiled(env, compiled)
+    try:
+        near_steps = 0
+        for seed in range(3):
+            observation, _ = env.reset(seed=seed)
+            expert, world = PrivilegedGrasp(env), env.unwrapped.world
+            for _ in range(200):
+                observation, _, terminated, truncated, _ = env.step(expert.predict(observation)[0])
+                for distance, min_gap in ((0.015, 1e-5), (0.08, 0.0005)):
+                    found = world.approach_directions(distance, min_gap)
+                    expected = brute_force_approach(world, distance, min_gap)
+                    assert_same_values(found, expected, f"seed {seed}")
+                    near_steps += bool(found)
+                if terminated or truncated:
+                    break
+        assert near_steps > 200
     finally:
         env.close()

@@ -5,6 +5,7 @@ and drives a :class:`~liuxing_envs.sim.grasp_world.GraspWorld` through its named
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -81,27 +82,50 @@ class EndEffectorDeltaController:
         times ``scale``, or None where it is refused."""
         # Displacements are from the actual pose (not the last target), so a zero action holds
         # the arm where it is and pushing against the tray cannot wind its servos up.
-        tcp = world.tcp_position()
-        target = np.clip(
-            tcp + self.max_translation * arm_action[:3],
-            world.workspace_lower,
-            world.workspace_upper,
-        )
-        yaw_change = self.max_yaw * arm_action[3]
-        if scale != 1.0:
-            start = np.clip(tcp, world.workspace_lower, world.workspace_upper)  # a zero action's
-            target = start + scale * (target - start)
-            yaw_change *= scale
-        yaw = world.tcp_yaw() + yaw_change
-        yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
         reference = world.arm_ctrl()
-        qpos = world.arm.closed_form_nearest(target, tool_down(yaw), reference, site=TCP_SITE)
+        if world.compiled:  # the same pose by the kernel, in one call
+            from liuxing_envs.kernels.tool_target import tool_target_pose
+
+            pose = tool_target_pose(
+                world.data.site_xpos,
+                world.data.site_xmat,
+                world.tcp_site,
+                arm_action,
+                self.max_translation,
+                self.max_yaw,
+                scale,
+                world.workspace_lower,
+                world.workspace_upper,
+            )
+            qpos = world.arm.closed_form_nearest_pose(pose, reference, site=TCP_SITE)
+        else:
+            qpos = world.arm.closed_form_nearest(
+                *self._target(world, arm_action, scale), reference, site=TCP_SITE
+            )
         # Near a joint limit the nearest solution can be another arm configuration (elbow or
         # wrist flipped), which a servo would swing to across the workspace: refused, as an
         # unreachable target is.
         if qpos is not None and np.abs(qpos - reference).max() <= MAX_SETPOINT_JUMP:
             return qpos
         return None
+
+    def _target(
+        self, world: GraspWorld, arm_action: np.ndarray, scale: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The tool-centre position and rotation ``arm_action`` asks for (the reference of
+        :func:`~liuxing_envs.kernels.tool_target.tool_target_pose`)."""
+        # np.minimum and np.maximum clip as np.clip does, at half its cost.
+        tcp = world.tcp_position()
+        lower, upper = world.workspace_lower, world.workspace_upper
+        target = np.minimum(np.maximum(tcp + self.max_translation * arm_action[:3], lower), upper)
+        yaw_change = self.max_yaw * float(arm_action[3])
+        if scale != 1.0:
+            start = np.minimum(np.maximum(tcp, lower), upper)  # a zero action's target
+            target = start + scale * (target - start)
+            yaw_change *= scale
+        yaw = world.tcp_yaw() + yaw_change
+        yaw = (yaw + math.pi) % (2 * math.pi) - math.pi
+        return target, tool_down(yaw)
 
 
 ARM_CONTROLLERS = {"ee_delta": EndEffectorDeltaController, "joint_delta": JointDeltaController}

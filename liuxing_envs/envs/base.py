@@ -18,7 +18,7 @@ import gymnasium as gym
 from liuxing_envs.forking import check_opengl_not_forked
 from liuxing_envs.opengl import new_renderer
 from liuxing_envs.settings import Settings
-from liuxing_envs.validation import closest, refuse_if_closed, step_context
+from liuxing_envs.validation import closest, note_step_error, refuse_if_closed
 
 #: (height, width) of ``render()``'s frames.
 RENDER_SIZE = (480, 640)
@@ -151,10 +151,16 @@ class LiuxingEnv(gym.Env):
 
     def step(self, action):
         refuse_if_closed(self)
-        with step_context(self, self._steps_taken() + 1, self._reset_seed):
+        step = self._steps_taken() + 1
+        # A try block, not a context manager: this wraps every step of every env, and a
+        # context manager costs microseconds to enter and leave.
+        try:
             if not self._episode_ready:
                 raise RuntimeError("call reset() before step(), and again after an episode ends")
             return self._step(action)
+        except Exception as error:
+            note_step_error(self, error, step, self._reset_seed)
+            raise
 
     def _steps_taken(self) -> int:
         """Steps of the episode taken so far."""

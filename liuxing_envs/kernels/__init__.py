@@ -1,4 +1,4 @@
-"""Compiled kernels (numba) for the hot paths of a view step.
+"""Compiled kernels (numba) for the hot paths of a view step and of a grasp step.
 
 Each kernel lives in its own module of this package together with the helpers it calls:
 numba invalidates a function's on-disk cache only when the file that defines it changes, and

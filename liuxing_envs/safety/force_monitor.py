@@ -3,8 +3,7 @@ the instrument, and makes the protective stop a real arm's force monitor makes."
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import mujoco
 
@@ -19,9 +18,9 @@ if TYPE_CHECKING:
 FORCE_SAMPLE_SUBSTEPS = 5
 
 
-@dataclass(frozen=True)
-class ForcePeaks:
-    """A control step's peaks (N) over its force samples, and how it ended."""
+class ForcePeaks(NamedTuple):
+    """A control step's peaks (N) over its force samples, and how it ended (a named tuple:
+    made every step, it costs a third of a frozen dataclass)."""
 
     left: float = 0.0
     right: float = 0.0
@@ -45,35 +44,50 @@ class ForceMonitor:
     def __init__(self, settings: Safety, substeps: int) -> None:
         self.hard_limit, self.hard_impact_limit = settings.hard_limit, settings.hard_impact_limit
         self.substeps = substeps
+        #: The physics steps of each force sample: FORCE_SAMPLE_SUBSTEPS, the last the rest.
+        self._samples = [
+            min(FORCE_SAMPLE_SUBSTEPS, substeps - start)
+            for start in range(0, substeps, FORCE_SAMPLE_SUBSTEPS)
+        ]
 
     def run(self, world: GraspWorld) -> ForcePeaks:
         model, data, gripper = world.model, world.data, world.gripper
-        # The pads' peaks as Python floats: this loop runs once per force sample (five times a
-        # step by default), and numpy's per-call overhead on 2-vectors cost more than the
-        # bookkeeping's arithmetic; for the same reason the methods and settings it calls are
-        # looked up once (``mujoco.mj_step`` once per call: a benchmark wraps it).
+        # This loop runs once per force sample (five times a step by default), so it keeps to
+        # Python floats and plain comparisons (numpy's and max()'s per-call overhead cost more
+        # than the bookkeeping's arithmetic), looks the methods and settings it calls up once
+        # (``mujoco.mj_step`` once per call: a benchmark wraps it) and passes ``nstep`` by
+        # position, which pybind11 takes faster than a keyword.
         forces, impact_force = gripper.fingertip_force_values, world.impact_force
-        step, options, substeps = mujoco.mj_step, model.opt, self.substeps
+        step, options = mujoco.mj_step, model.opt
         hard_limit, hard_impact_limit = self.hard_limit, self.hard_impact_limit
         peak_left = peak_right = impact_peak = 0.0
         stopped = False
         left, right = forces()
         divergences = divergence_count(data)
-        for start in range(0, substeps, FORCE_SAMPLE_SUBSTEPS):
+        noslip = options.noslip_iterations
+        for substeps in self._samples:
             # Noslip iterations stop a held instrument creeping in the pads; they cost a third
             # of a physics step, so they run only while a pad touches something.
-            options.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
-            step(model, data, nstep=min(FORCE_SAMPLE_SUBSTEPS, substeps - start))
+            wanted = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
+            if wanted != noslip:
+                options.noslip_iterations = noslip = wanted
+            step(model, data, substeps)
             left, right = forces()
-            peak_left, peak_right = max(peak_left, left), max(peak_right, right)
-            impact_peak = max(impact_peak, impact_force())
-            if max(peak_left, peak_right) > hard_limit or impact_peak > hard_impact_limit:
+            impact = impact_force()
+            # As max(): a new peak only where it is higher (NaN never is).
+            if left > peak_left:
+                peak_left = left
+            if right > peak_right:
+                peak_right = right
+            if impact > impact_peak:
+                impact_peak = impact
+            if peak_left > hard_limit or peak_right > hard_limit or impact_peak > hard_impact_limit:
                 # Protective stop: hold the arm and the fingers where they are and end the step
                 # (and the episode) here.
                 world.set_arm_ctrl(world.arm.qpos)
                 gripper.command(gripper.opening())
                 stopped = True
-                step(model, data, nstep=FORCE_SAMPLE_SUBSTEPS)
+                step(model, data, FORCE_SAMPLE_SUBSTEPS)
                 left, right = forces()
                 peak_left, peak_right = max(peak_left, left), max(peak_right, right)
                 impact_peak = max(impact_peak, impact_force())

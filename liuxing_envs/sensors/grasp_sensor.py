@@ -66,6 +66,38 @@ class GraspSensor:
     def observe(self, world: GraspWorld, commanded_opening: float) -> dict[str, np.ndarray]:
         """The observation now; ``commanded_opening`` is the gripper controller's (the
         action's, which the approach guard may shorten)."""
+        if world.compiled:
+            obs = self._observe_compiled(world, commanded_opening)
+        else:
+            obs = self._observe_reference(world, commanded_opening)
+        if self.obs_mode != "state":
+            depth = world.camera(self.intrinsics, self.depth_backend).render(world.data)
+            obs["depth"] = encode_depth(depth)[None]
+        if self.obs_mode == "rgbd":
+            obs["rgb"] = world.rgb(self.intrinsics).transpose(2, 0, 1).copy()
+        return obs
+
+    def _observe_compiled(self, world: GraspWorld, commanded_opening: float) -> dict:
+        """The entries that are no image, by the kernel (one call)."""
+        from liuxing_envs.kernels.grasp_observation import grasp_observation
+
+        data = world.data
+        proprio, forces, instrument = grasp_observation(
+            data.qpos,
+            data.qvel,
+            data.site_xpos,
+            data.site_xmat,
+            data.sensordata,
+            world.observation_layout(),
+            float(commanded_opening),
+            self.obs_mode == "state",
+        )
+        if self.obs_mode == "state":
+            return {"proprio": proprio, "forces": forces, "instrument": instrument}
+        return {"proprio": proprio, "forces": forces}
+
+    def _observe_reference(self, world: GraspWorld, commanded_opening: float) -> dict:
+        """The entries that are no image, in Python (the kernel's reference)."""
         gripper = world.gripper
         tcp = world.tcp_position()
         yaw = world.tcp_yaw()
@@ -83,7 +115,7 @@ class GraspSensor:
         ]
         obs = {
             "proprio": np.array(proprio, dtype=np.float32),
-            "forces": gripper.fingertip_forces().astype(np.float32),
+            "forces": np.array(gripper.fingertip_force_values(), dtype=np.float32),
         }
         if self.obs_mode == "state":
             grasp_point, axis = world.grasp_point(), world.grasp_axis()
@@ -103,9 +135,4 @@ class GraspSensor:
                 math.sin(misalignment),
             ]
             obs["instrument"] = np.array(instrument, dtype=np.float32)
-        else:
-            depth = world.camera(self.intrinsics, self.depth_backend).render(world.data)
-            obs["depth"] = encode_depth(depth)[None]
-        if self.obs_mode == "rgbd":
-            obs["rgb"] = world.rgb(self.intrinsics).transpose(2, 0, 1).copy()
         return obs

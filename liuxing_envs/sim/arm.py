@@ -38,7 +38,7 @@ from liuxing_envs.sim.arm_model import (
     arm_geom_mask,
     arm_joint_ids,
     finite_qpos,
-    qpos_writer,
+    index_of,
     require_id,
 )
 from liuxing_envs.sim.arm_motion import MOTION_MODES, ArmMotion, MotionResult
@@ -92,11 +92,12 @@ class Arm:
 
         joint_ids = arm_joint_ids(model)
         #: Addresses of the arm's joints in ``qpos`` and ``qvel``, its actuators' ids, and
-        #: what to index ``qpos`` with to write the joints (for the parts' hot loops: do not
-        #: modify).
+        #: what to index ``qpos`` with to read or write the joints (for the parts' hot loops:
+        #: do not modify).
         self.qpos_addresses = model.jnt_qposadr[joint_ids].copy()
-        self.qpos_at = qpos_writer(self.qpos_addresses)
+        self.qpos_at = index_of(self.qpos_addresses)
         self.dof_addresses = model.jnt_dofadr[joint_ids].copy()
+        self._dof_at = index_of(self.dof_addresses)
         self.actuator_ids = np.array(
             [require_id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in ARM_ACTUATOR_NAMES]
         )
@@ -133,12 +134,12 @@ class Arm:
     @property
     def qpos(self) -> np.ndarray:
         """Current joint angles of the arm (rad), a copy."""
-        return self.data.qpos[self.qpos_addresses].copy()
+        return self.data.qpos[self.qpos_at].copy()
 
     @property
     def qvel(self) -> np.ndarray:
         """Current joint velocities of the arm (rad/s), a copy."""
-        return self.data.qvel[self.dof_addresses].copy()
+        return self.data.qvel[self._dof_at].copy()
 
     def within_limits(self, qpos: np.ndarray) -> bool:
         qpos = np.asarray(qpos)
@@ -219,6 +220,12 @@ class Arm:
     ) -> np.ndarray | None:
         """See :meth:`ArmIK.closed_form_nearest`."""
         return self.ik.closed_form_nearest(position, rotation, reference, site)
+
+    def closed_form_nearest_pose(
+        self, site_pose, reference, site: str = WRIST_CAMERA_SITE
+    ) -> np.ndarray | None:
+        """See :meth:`ArmIK.closed_form_nearest_pose`."""
+        return self.ik.closed_form_nearest_pose(site_pose, reference, site)
 
     # ------------------------------------------------------------ motion (ArmMotion)
     def move_to(self, qpos: np.ndarray, mode: str = "kinematic", **settings) -> MotionResult:

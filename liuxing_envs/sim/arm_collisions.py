@@ -20,7 +20,7 @@ from liuxing_envs.sim.arm_model import (
     arm_geom_mask,
     arm_joint_ids,
     finite_qpos,
-    qpos_writer,
+    index_of,
     require_id,
 )
 from liuxing_envs.sim.scene import HOME_QPOS
@@ -167,7 +167,7 @@ class ArmCollisions(ArmPart):
             scene = self._scene_cache[key] = CollisionScene(
                 model,
                 data,
-                qpos_writer(model.jnt_qposadr[joints]),
+                index_of(model.jnt_qposadr[joints]),
                 arm_geom_mask(model),
             )
         self.scene = scene

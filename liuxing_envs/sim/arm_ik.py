@@ -234,12 +234,23 @@ class ArmIK(ArmPart):
         per-step query: no collision check, no residuals, and no checks of the inputs, which
         must be a finite 3-vector, a proper 3x3 rotation and an array of finite joint
         angles."""
+        # homogeneous(position, rotation), without np.eye's cost (it runs on every step).
+        site_pose = np.empty((4, 4))
+        site_pose[:3, :3] = rotation
+        site_pose[:3, 3] = position
+        site_pose[3] = _HOMOGENEOUS_ROW
+        return self.closed_form_nearest_pose(site_pose, reference, site)
+
+    def closed_form_nearest_pose(
+        self, site_pose: np.ndarray, reference: np.ndarray, site: str = WRIST_CAMERA_SITE
+    ) -> np.ndarray | None:
+        """:meth:`closed_form_nearest` of the pose given as one 4x4 homogeneous matrix."""
         flange_in_site = self._flange_from_site(self._arm.site_id(site))
         if flange_in_site is None:
             raise ValueError(
                 f"the closed-form IK needs a site fixed to the last link, not {site!r}"
             )
-        ordered = self._one_pose_nearest_first(position, rotation, flange_in_site, reference)
+        ordered = self._one_pose_nearest_first(site_pose, flange_in_site, reference)
         return np.array(ordered[0]) if len(ordered) else None
 
     def nearest_first(self, candidates: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -325,7 +336,8 @@ class ArmIK(ArmPart):
                 solutions, valid = ur_ik(flange_poses)
                 ordered = self.nearest_first(solutions[valid], reference)
         else:  # a controller's target: one pose, on Python floats (see ur_ik)
-            ordered = self._one_pose_nearest_first(target_p, target_r, flange_in_site, reference)
+            site_pose = homogeneous(target_p, target_r)
+            ordered = self._one_pose_nearest_first(site_pose, flange_in_site, reference)
         tried, colliding = 0, None
         for q in map(np.asarray, ordered):
             tried += 1
@@ -354,16 +366,10 @@ class ArmIK(ArmPart):
             upper,
         )
 
-    def _one_pose_nearest_first(self, position, rotation, flange_in_site, reference):
-        """The closed-form solutions for one site pose, as :meth:`nearest_first_of_few`
+    def _one_pose_nearest_first(self, site_pose, flange_in_site, reference):
+        """The closed-form solutions for one site pose (4x4), as :meth:`nearest_first_of_few`
         orders them: lists of joint angles, or the rows of an array by the compiled kernel
-        (:mod:`liuxing_envs.kernels.one_pose_ik`, the same values bit for bit). ``rotation``
-        is a 3x3 array."""
-        # homogeneous(position, rotation), without np.eye's cost (it runs on every step).
-        site_pose = np.empty((4, 4))
-        site_pose[:3, :3] = rotation
-        site_pose[:3, 3] = position
-        site_pose[3] = _HOMOGENEOUS_ROW
+        (:mod:`liuxing_envs.kernels.one_pose_ik`, the same values bit for bit)."""
         flange_in_base = self._base_inverse @ site_pose @ flange_in_site
         if self.compiled:
             from liuxing_envs.kernels import one_pose_ik

@@ -56,10 +56,10 @@ def arm_joint_ids(model: mujoco.MjModel) -> np.ndarray:
     return np.array([require_id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in ARM_JOINT_NAMES])
 
 
-def qpos_writer(addresses: np.ndarray) -> slice | np.ndarray:
-    """What to index ``qpos`` with to write the arm's joints: a slice when they are
-    contiguous. Writing a slice costs a fifth of a fancy-index write, and the planning loop
-    sets the joints dozens of times per path."""
+def index_of(addresses: np.ndarray) -> slice | np.ndarray:
+    """What to index an array of MuJoCo's data (``qpos``, ``qvel``, ``ctrl``) with to read or
+    write these addresses: a slice when they are contiguous. Writing a slice costs a fifth of
+    a fancy-index write, and the planning loop sets the joints dozens of times per path."""
     first = int(addresses[0])
     contiguous = np.array_equal(addresses, np.arange(first, first + len(addresses)))
     return slice(first, first + len(addresses)) if contiguous else addresses.copy()

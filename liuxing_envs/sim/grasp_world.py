@@ -11,6 +11,7 @@ import numpy as np
 from liuxing_envs.forking import check_opengl_not_forked
 from liuxing_envs.opengl import new_renderer
 from liuxing_envs.sim.arm import Arm
+from liuxing_envs.sim.arm_model import index_of
 from liuxing_envs.sim.camera import CameraIntrinsics, DepthCamera
 from liuxing_envs.sim.gripper import MAX_OPENING, TCP_SITE, Gripper, attach_gripper
 from liuxing_envs.sim.instruments import add_instrument, add_tray, get_instrument
@@ -19,6 +20,10 @@ from liuxing_envs.sim.scene import HOME_QPOS, WRIST_CAMERA, load_scene_spec, res
 #: Closer than this (m) the direction from pad to instrument is left to the contact forces:
 #: it is not defined at a touch.
 APPROACH_MIN_GAP = 0.0005
+#: A pad and an instrument geom whose bounding spheres are this much (m) farther apart than
+#: the distance asked about are not measured: mj_geomDistance would answer that distance. The
+#: slack covers its numerical error many times over.
+BOUND_SLACK = 0.001
 #: A pad "holds" the instrument when it presses on it with at least this force (ManiSkill).
 GRASP_FORCE_THRESHOLD = 0.5  # N
 #: Where the tool centre may go (a controller's workspace limit): over the inside of the tray,
@@ -94,15 +99,25 @@ class GraspWorld:
         self._joint_qpos = model.jnt_qposadr[model.joint(self.PREFIX + "joint").id]
         self._joint_dof = model.jnt_dofadr[model.joint(self.PREFIX + "joint").id]
         self._grasp_site = model.site(self.PREFIX + "grasp").id
-        self._tcp_site = model.site(TCP_SITE).id
+        #: The tool-centre site's id (a row of ``data.site_xpos`` and ``data.site_xmat``).
+        self.tcp_site = model.site(TCP_SITE).id
         self._geoms = np.flatnonzero(model.geom_bodyid == self.body)
         self._fromto = np.zeros(6)
+        # The pads, then the instrument's geoms: one gather of their centres per query.
+        self._pads_then_geoms = np.concatenate([self.gripper.pad_geoms, self._geoms])
+        # Sum of each pad's and geom's bounding-sphere radii (pads x geoms), plus the slack.
+        self._bound_radii = (
+            model.geom_rbound[self.gripper.pad_geoms][:, None]
+            + model.geom_rbound[self._geoms][None, :]
+            + BOUND_SLACK
+        )
         self._nominal_mass = model.body_mass[self.body]
         self._nominal_inertia = model.body_inertia[self.body].copy()
         self._friction_geoms = self._friction_partners()
         self._nominal_friction = model.geom_friction[self._friction_geoms].copy()
         #: The arm servos' actuator ids, base to wrist (the arm's own).
         self.arm_actuators = self.arm.actuator_ids
+        self._arm_ctrl_at = index_of(self.arm_actuators)
         # A softer servo keeps its damping ratio: kp scales, kv with its square root.
         model.actuator_gainprm[self.arm_actuators, 0] *= arm_stiffness
         model.actuator_biasprm[self.arm_actuators, 1] *= arm_stiffness
@@ -110,9 +125,10 @@ class GraspWorld:
         if servo_damping_ratio is not None:
             self._damp_at_ready_pose(servo_damping_ratio)
         self._camera_id = model.camera(WRIST_CAMERA).id
-        robot = model.body_rootid[model.site_bodyid[self._tcp_site]]
+        robot = model.body_rootid[model.site_bodyid[self.tcp_site]]
         self._on_robot = model.body_rootid[model.geom_bodyid] == robot
         self._kinematics = mujoco.MjData(model)
+        self._observation_layout: np.ndarray | None = None
         self._camera: DepthCamera | None = None
         self._rgb: mujoco.Renderer | None = None
 
@@ -252,18 +268,47 @@ class GraspWorld:
         limit = np.asarray(self.tray.inner_half_size) - TRAY_MARGIN
         return bool(np.all(np.abs(placed - self.tray.center) <= limit))
 
+    @property
+    def compiled(self) -> bool:
+        """Whether the per-step arithmetic (the arm's closed-form IK, the ``ee_delta``
+        target, the observation) runs in the compiled kernels or in their numpy references:
+        one switch, the arm IK's ``compiled``, which tests flip to compare the two."""
+        return self.arm.ik.compiled
+
+    @compiled.setter
+    def compiled(self, value: bool) -> None:
+        self.arm.ik.compiled = bool(value)
+
+    def observation_layout(self) -> np.ndarray:
+        """The ids and addresses :func:`~liuxing_envs.kernels.grasp_observation.
+        grasp_observation` reads at, in its layout (made on first use: the kernel module
+        imports numba)."""
+        if self._observation_layout is None:
+            from liuxing_envs.kernels import grasp_observation as kernel
+
+            layout = np.empty(kernel.LAYOUT_SIZE, dtype=np.int64)
+            layout[kernel.TCP_SITE] = self.tcp_site
+            layout[kernel.GRASP_SITE] = self._grasp_site
+            layout[[kernel.LEFT_FINGER, kernel.RIGHT_FINGER]] = self.gripper.finger_qpos
+            layout[[kernel.LEFT_TOUCH, kernel.RIGHT_TOUCH]] = self.gripper.touch_addresses
+            layout[kernel.INSTRUMENT_DOF] = self._joint_dof
+            layout[kernel.ARM_QPOS : kernel.ARM_QPOS + 6] = self.arm.qpos_addresses
+            layout[kernel.ARM_DOF : kernel.ARM_DOF + 6] = self.arm.dof_addresses
+            self._observation_layout = layout
+        return self._observation_layout
+
     def arm_ctrl(self) -> np.ndarray:
-        return self.data.ctrl[self.arm_actuators].copy()
+        return self.data.ctrl[self._arm_ctrl_at].copy()
 
     def set_arm_ctrl(self, qpos: np.ndarray) -> None:
-        self.data.ctrl[self.arm_actuators] = qpos
+        self.data.ctrl[self._arm_ctrl_at] = qpos
 
     def tcp_position(self) -> np.ndarray:
-        return self.data.site_xpos[self._tcp_site].copy()
+        return self.data.site_xpos[self.tcp_site].copy()
 
     def tcp_yaw(self) -> float:
         """Angle of the tool's x axis about world z (rad); the jaws close along its y axis."""
-        x_axis = self.data.site_xmat[self._tcp_site].reshape(3, 3)[:, 0]
+        x_axis = self.data.site_xmat[self.tcp_site].reshape(3, 3)[:, 0]
         return math.atan2(x_axis[1], x_axis[0])
 
     def wrist_camera_pose(self, arm_qpos) -> tuple[np.ndarray, np.ndarray]:
@@ -296,6 +341,8 @@ class GraspWorld:
     def grasped(self) -> bool:
         """Both pads press on the instrument with at least GRASP_FORCE_THRESHOLD each (what
         they press on the tray does not count)."""
+        if self.data.ncon == 0:  # no contact at all: the common case, answered cheaply
+            return False
         return bool(np.all(self.gripper.pad_forces_on(self.body) >= GRASP_FORCE_THRESHOLD))
 
     def asleep(self) -> bool:
@@ -313,10 +360,27 @@ class GraspWorld:
         """(pad geom, unit vector from it to the instrument's nearest point, gap in m) for
         each pad between ``min_gap`` and ``distance`` (m) of the instrument."""
         model, data = self.model, self.data
+        # Only the pairs whose bounding spheres come within ``distance`` are measured: the
+        # others lie farther than any gap this could return. While the gripper is away from
+        # the instrument that skips every mj_geomDistance call, a step's dearest bookkeeping.
+        if self.compiled:
+            from liuxing_envs.kernels.pad_bounds import pairs_within
+
+            measured, count = pairs_within(
+                data.geom_xpos, self._pads_then_geoms, self._bound_radii, distance
+            )
+        else:
+            centres = data.geom_xpos[self._pads_then_geoms]
+            offsets = centres[None, 2:] - centres[:2, None]
+            reach = distance + self._bound_radii
+            measured = np.add.reduce(offsets * offsets, axis=2) < reach * reach
+            count = measured.any()
+        if not count:
+            return []
         near = []
-        for pad in self.gripper.pad_geoms:
+        for pad, geoms in zip(self.gripper.pad_geoms, measured, strict=True):
             nearest, toward = distance, None
-            for geom in self._geoms:
+            for geom in self._geoms[geoms]:
                 gap = mujoco.mj_geomDistance(model, data, pad, geom, nearest, self._fromto)
                 if gap < nearest:
                     nearest = gap

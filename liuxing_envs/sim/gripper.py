@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from liuxing_envs.assets import asset_path
+from liuxing_envs.sim.arm_model import index_of
 from liuxing_envs.sim.scene import FLANGE_SITE
 
 GRIPPER_FILE = "parallel_gripper.xml"
@@ -66,25 +67,25 @@ class Gripper:
         joints = ids("joint", FINGER_JOINTS)
         self._joints = joints
         self.finger_qpos = model.jnt_qposadr[joints]
+        self._left_qpos, self._right_qpos = self.finger_qpos.tolist()
         self._dof_idx = model.jnt_dofadr[joints]
         self.finger_actuators = ids("actuator", FINGER_ACTUATORS)
         # The same two actuators as a slice where they are neighbours (the asset's order):
         # the per-step commands write through it, which costs a third of a fancy index.
-        first = int(self.finger_actuators[0])
-        consecutive = self.finger_actuators.tolist() == [first, first + 1]
-        self._fingers = slice(first, first + 2) if consecutive else self.finger_actuators
+        self._fingers = index_of(self.finger_actuators)
         self._ctrl_high = model.actuator_ctrlrange[self.finger_actuators, 1].copy()
         self.pad_geoms = ids("geom", PAD_GEOMS)
         sensors = ids("sensor", PAD_TOUCH_SENSORS)
-        self._touch_adr = model.sensor_adr[sensors]
-        self._left_touch, self._right_touch = self._touch_adr.tolist()
+        #: The left and right pad's touch readings' addresses in ``data.sensordata``.
+        self.touch_addresses = model.sensor_adr[sensors]
+        self._left_touch, self._right_touch = self.touch_addresses.tolist()
         self.max_force = float(model.actuator_forcerange[self.finger_actuators[0], 1])
         self._wrench = np.zeros(6)
 
     def opening(self) -> float:
         """Distance between the pads (m)."""
-        left, right = self.data.qpos[self.finger_qpos].tolist()  # np.sum costs 5x more
-        return left + right
+        qpos = self.data.qpos  # two items: a fifth of indexing the array (np.sum: 5x more)
+        return qpos.item(self._left_qpos) + qpos.item(self._right_qpos)
 
     def command(self, opening: float) -> None:
         """Set the servo target: the pad distance to close or open to (m), clipped to range."""
@@ -143,7 +144,7 @@ class Gripper:
 
     def fingertip_forces(self) -> np.ndarray:
         """Normal force on the left and right pad (N), from the touch sensors."""
-        return self.data.sensordata[self._touch_adr].copy()
+        return self.data.sensordata[self.touch_addresses].copy()
 
     def fingertip_force_values(self) -> tuple[float, float]:
         """:meth:`fingertip_forces` as two Python floats (the force monitor reads them several

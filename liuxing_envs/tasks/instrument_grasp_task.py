@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 if TYPE_CHECKING:
     from liuxing_envs.envs.instrument_grasp_settings import InstrumentGraspSettings
@@ -41,9 +41,9 @@ class EpisodeStats:
     guarded_finger_steps: int = 0
 
 
-@dataclasses.dataclass(frozen=True)
-class StepResult:
-    """A control step's reward terms and what they make of it."""
+class StepResult(NamedTuple):
+    """A control step's reward terms and what they make of it (a named tuple, as
+    :class:`~liuxing_envs.safety.force_monitor.ForcePeaks`)."""
 
     terms: dict
     reward: float
@@ -167,7 +167,7 @@ class InstrumentGraspTask:
             "grasped": bool(grasped),
             "peak_force": stats.peak_force,
             "step_peak_force": step_peak,
-            "grip_force": max(world.gripper.fingertip_forces().tolist()),
+            "grip_force": max(world.gripper.fingertip_force_values()),
             "lift_height": float(lift),
             "force_violations": stats.force_violations,
             "impact_violations": stats.impact_violations,
