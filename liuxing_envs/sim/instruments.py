@@ -254,6 +254,12 @@ class Instrument:
         object.__setattr__(self, "grasp_width", float(self.grasp_width))
         object.__setattr__(self, "grasp_point", tuple(float(p) for p in self.grasp_point))
         object.__setattr__(self, "grasp_axis", tuple((axis / np.linalg.norm(axis)).tolist()))
+        # Computed once: every reset's placement draw reads it (a frozen instance's never
+        # changes), and computing it costs a few numpy calls per part.
+        centres = np.array([part.pos for part in self.parts])
+        half = _half_extents(self.parts)
+        bounds = np.stack([(centres - half).min(axis=0), (centres + half).max(axis=0)])
+        object.__setattr__(self, "_bounding_box", bounds)
         lowest = self.bounding_box[0, 2]
         if abs(lowest) > _ZERO_TOLERANCE:
             raise ValueError(f"{self.name}: the lowest point must be at z = 0, got {lowest} m")
@@ -263,9 +269,7 @@ class Instrument:
     @property
     def bounding_box(self) -> np.ndarray:
         """Axis-aligned bounding box in the instrument frame, ``[[min xyz], [max xyz]]`` (m)."""
-        centres = np.array([part.pos for part in self.parts])
-        half = _half_extents(self.parts)
-        return np.stack([(centres - half).min(axis=0), (centres + half).max(axis=0)])
+        return self._bounding_box.copy()
 
     @property
     def length(self) -> float:
