@@ -1,6 +1,6 @@
 """The grasp step's kernels against their Python references, bit for bit: the one-pose
 closed-form IK (liuxing_envs.kernels.one_pose_ik against ur_ik.solutions_of_one, then
-ArmIK.nearest_first_of_few), the ee_delta target pose (kernels.tool_target against the
+ArmIK.nearest_first_of_few), the ee_delta set-point (kernels.one_pose_ik against the
 controller's numpy) and the observation (kernels.grasp_observation against the sensor's
 Python); InstrumentGrasp-v1 episodes that do not change when the kernels are switched off;
 and the grasp step's leaner bookkeeping against what it replaced."""
@@ -251,9 +251,18 @@ def random_arm_poses(world, rng, count):
         yield
 
 
-def test_the_ee_delta_set_point_is_the_same_with_the_kernels_on_and_off():
+@pytest.mark.parametrize("numpy_blas", [True, False])
+def test_the_ee_delta_set_point_is_the_same_with_the_kernels_on_and_off(numpy_blas, monkeypatch):
     """Random arm poses (their tool centres in and out of the workspace) and actions (the
-    corners of the action box among them), whole and scaled moves."""
+    corners of the action box among them), whole and scaled moves; the set-point in one
+    kernel that calls numpy's BLAS, and in two around numpy's matrix products where that
+    BLAS is not found."""
+    if numpy_blas:
+        if np.show_config(mode="dicts")["Build Dependencies"]["blas"]["name"] != "scipy-openblas":
+            pytest.skip("this numpy is not built with the OpenBLAS of numpy's wheels")
+        assert kernels.numpy_dgemm() is not None, "numpy's BLAS was not found"
+    else:
+        monkeypatch.setattr(kernels, "numpy_dgemm", lambda: None)
     env = gym.make("InstrumentGrasp-v1")
     try:
         env.reset(seed=0)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
+from liuxing_envs.sim.arm_ik import IK_LIMIT_SLACK
 from liuxing_envs.sim.grasp_world import tool_down
 from liuxing_envs.sim.gripper import TCP_SITE
 
@@ -83,21 +84,26 @@ class EndEffectorDeltaController:
         # Displacements are from the actual pose (not the last target), so a zero action holds
         # the arm where it is and pushing against the tray cannot wind its servos up.
         reference = world.arm_ctrl()
-        if world.compiled:  # the same pose by the kernel, in one call
-            from liuxing_envs.kernels.tool_target import tool_target_pose
+        if world.compiled:
+            from liuxing_envs import kernels
+            from liuxing_envs.kernels import one_pose_ik
 
-            pose = tool_target_pose(
-                world.data.site_xpos,
-                world.data.site_xmat,
-                world.tcp_site,
-                arm_action,
-                self.max_translation,
-                self.max_yaw,
-                scale,
-                world.workspace_lower,
-                world.workspace_upper,
+            dgemm = kernels.numpy_dgemm()
+            data, arm = world.data, world.arm
+            move = (arm_action, self.max_translation, self.max_yaw, scale)
+            workspace = (world.workspace_lower, world.workspace_upper)
+            if dgemm is not None:  # the whole set-point in one call
+                base_inverse, flange_in_site = arm.ik.flange_frames(TCP_SITE)
+                qpos = one_pose_ik.ee_delta_set_point(
+                    data.site_xpos, data.site_xmat, world.tcp_site, *move, *workspace,
+                    base_inverse, flange_in_site, dgemm, reference, arm.lower, arm.upper,
+                    IK_LIMIT_SLACK, one_pose_ik.CONSTANTS, MAX_SETPOINT_JUMP,
+                )  # fmt: skip
+                return qpos if len(qpos) else None
+            pose = one_pose_ik.tool_target_pose(
+                data.site_xpos, data.site_xmat, world.tcp_site, *move, *workspace
             )
-            qpos = world.arm.closed_form_nearest_pose(pose, reference, site=TCP_SITE)
+            qpos = arm.closed_form_nearest_pose(pose, reference, site=TCP_SITE)
         else:
             qpos = world.arm.closed_form_nearest(
                 *self._target(world, arm_action, scale), reference, site=TCP_SITE
@@ -113,7 +119,7 @@ class EndEffectorDeltaController:
         self, world: GraspWorld, arm_action: np.ndarray, scale: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """The tool-centre position and rotation ``arm_action`` asks for (the reference of
-        :func:`~liuxing_envs.kernels.tool_target.tool_target_pose`)."""
+        :func:`~liuxing_envs.kernels.one_pose_ik.tool_target_pose`)."""
         # np.minimum and np.maximum clip as np.clip does, at half its cost.
         tcp = world.tcp_position()
         lower, upper = world.workspace_lower, world.workspace_upper

@@ -19,12 +19,15 @@ every process, with one warning.
 
 from __future__ import annotations
 
+import ctypes
 import functools
 import importlib.util
 import os
 import tempfile
 import warnings
 from pathlib import Path
+
+import numpy as np
 
 #: Options every kernel compiles with. ``error_model="numpy"``: a division by zero gives
 #: inf or nan as in numpy (the references rely on it) instead of raising. No ``fastmath``:
@@ -74,3 +77,47 @@ def disk_cache() -> bool:
 def jit_options() -> dict:
     """Keyword arguments for ``numba.njit`` of every kernel and helper in this package."""
     return {"cache": disk_cache(), **KERNEL_OPTIONS}
+
+
+#: Arguments of CBLAS: row-major storage, matrices not transposed.
+_ROW_MAJOR, _NO_TRANS = 101, 111
+
+
+@functools.cache
+def numpy_dgemm() -> int | None:
+    """The address of the ``cblas_dgemm`` that numpy's ``matmul`` calls for float64
+    matrices (the OpenBLAS numpy's wheels ship, with 64-bit integers), for kernels whose
+    matrix products must be numpy's bit for bit; None where it is not found, or where calling
+    it does not reproduce ``matmul`` on this machine (callers then keep numpy's products)."""
+    try:
+        blas = np.show_config(mode="dicts")["Build Dependencies"]["blas"]
+    except (KeyError, TypeError, AttributeError):
+        return None
+    if blas.get("name") != "scipy-openblas" or "USE64BITINT" not in str(
+        blas.get("openblas configuration", "")
+    ):
+        return None
+    for path in sorted((Path(np.__file__).parent.parent / "numpy.libs").glob("*openblas64*")):
+        try:
+            dgemm = ctypes.CDLL(str(path)).scipy_cblas_dgemm64_
+        except (OSError, AttributeError):
+            continue
+        if _reproduces_matmul(dgemm):
+            return ctypes.cast(dgemm, ctypes.c_void_p).value
+    return None
+
+
+def _reproduces_matmul(dgemm) -> bool:
+    """Whether ``dgemm`` gives ``a @ b``'s bits for seeded 4x4 matrices."""
+    size, pointer = ctypes.c_int64, ctypes.c_void_p
+    dgemm.argtypes = [ctypes.c_int] * 3 + [size] * 3 + [ctypes.c_double, pointer, size]
+    dgemm.argtypes += [pointer, size, ctypes.c_double, pointer, size]
+    dgemm.restype = None
+    rng = np.random.default_rng(0)
+    for _ in range(64):
+        a, b, product = rng.normal(size=(4, 4)), rng.normal(size=(4, 4)), np.empty((4, 4))
+        dgemm(_ROW_MAJOR, _NO_TRANS, _NO_TRANS, 4, 4, 4, 1.0, a.ctypes.data, 4,
+              b.ctypes.data, 4, 0.0, product.ctypes.data, 4)  # fmt: skip
+        if product.tobytes() != (a @ b).tobytes():
+            return False
+    return True

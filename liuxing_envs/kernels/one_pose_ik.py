@@ -1,6 +1,6 @@
 """The closed-form IK of one flange pose, ordered nearest first: ``ur_ik.solutions_of_one``
 followed by ``ArmIK.nearest_first_of_few`` (a controller's target, once per control step),
-with the same results bit for bit.
+with the same results bit for bit; and the whole ``ee_delta`` set-point around it.
 
 The reference runs on Python floats with the ``math`` module, which calls the C library's
 ``sin``, ``cos``, ``acos``, ``asin``, ``atan2`` and ``sqrt``; numba's scalar ``math`` calls
@@ -10,8 +10,17 @@ reassociated or fused into multiply-adds). The one numpy call of the reference,
 calls (Python's own ``math.hypot`` is not). So every operation below is spelled in the
 reference's order and grouping; its comparisons, ``min``/``max`` (which keep their first
 argument on a tie or a NaN) and whole-turn rounding (``round`` of a float, half to even, as
-``np.rint``) likewise. The flange pose itself (two 4x4 products that numpy hands to BLAS)
-stays a numpy call in the caller. ``tests/test_grasp_kernels.py`` holds the two equal.
+``np.rint``) likewise.
+
+The set-point (``EndEffectorDeltaController.set_point``) first makes the tool pose an action
+asks for: numpy's ``np.minimum`` and ``np.maximum`` keep their first argument on a tie (the
+workspace bounds are never zero, so a tie is of two equal numbers), and ``%`` of two floats
+follows Python's sign rule in numba as in numpy. The flange pose is two 4x4 products that
+numpy hands to BLAS, whose order of sums no plain loop reproduces: :func:`ee_delta_set_point`
+calls that same BLAS function at its address (:func:`liuxing_envs.kernels.numpy_dgemm`), and
+where it is not found the caller makes the products with numpy between
+:func:`tool_target_pose` and :func:`one_pose_nearest`. ``tests/test_grasp_kernels.py`` holds
+each equal to its reference.
 
 A solution's row among a pose's eight is ``4 * shoulder + 2 * wrist + elbow``, as in
 ``ur_ik``; the kernel returns the kept solutions nearest first (a stable sort of their
@@ -23,7 +32,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from liuxing_envs.kernels import jit_options
 from liuxing_envs.sim import ur_ik
@@ -208,3 +219,102 @@ def solutions_of_one(pose, consts):
     rows = np.empty(8, dtype=np.int64)
     count = _solutions(pose, consts, solutions, rows)
     return rows[:count].copy(), solutions[:count].copy()
+
+
+@njit(**jit_options())
+def _clipped(value, low, high):
+    """``np.minimum(np.maximum(value, low), high)`` of floats."""
+    raised = value if value >= low else low
+    return raised if raised <= high else high
+
+
+@njit(**jit_options())
+def tool_target_pose(
+    site_xpos, site_xmat, site, arm_action, max_translation, max_yaw, scale, lower, upper
+):
+    """The 4x4 pose of site ``site`` (row of ``site_xpos`` and ``site_xmat``) that the
+    ``ee_delta`` action ``arm_action`` (4 floats in [-1, 1]) asks for: its translation, times
+    ``max_translation`` m, from where the site is, clipped to ``lower`` and ``upper``; its yaw,
+    times ``max_yaw`` rad, from the site's x axis about world z, wrapped to [-pi, pi); both
+    moves times ``scale`` (from a zero action's target); the tool pointing down."""
+    pi = math.pi
+    target = np.empty(3)
+    for i in range(3):
+        target[i] = _clipped(
+            site_xpos[site, i] + max_translation * arm_action[i], lower[i], upper[i]
+        )
+    yaw_change = max_yaw * arm_action[3]
+    if scale != 1.0:
+        for i in range(3):
+            start = _clipped(site_xpos[site, i], lower[i], upper[i])
+            target[i] = start + scale * (target[i] - start)
+        yaw_change *= scale
+    yaw = math.atan2(site_xmat[site, 3], site_xmat[site, 0]) + yaw_change
+    yaw = (yaw + pi) % (2 * pi) - pi
+    c, s = math.cos(yaw), math.sin(yaw)
+    pose = np.zeros((4, 4))
+    pose[0, 0], pose[0, 1] = c, s
+    pose[1, 0], pose[1, 1] = s, -c
+    pose[2, 2] = -1.0
+    for i in range(3):
+        pose[i, 3] = target[i]
+    pose[3, 3] = 1.0
+    return pose
+
+
+@intrinsic
+def _dgemm(typingctx, address, a, b, product):
+    """``product = a @ b`` of C-contiguous 4x4 float64 matrices (data pointers) by the
+    ``cblas_dgemm`` at ``address``, called with the arguments numpy's ``matmul`` passes."""
+    signature = types.void(address, a, b, product)
+
+    def codegen(context, builder, signature, args):
+        int32, int64, double = ir.IntType(32), ir.IntType(64), ir.DoubleType()
+        pointer = ir.IntType(8).as_pointer()
+        function_type = ir.FunctionType(
+            ir.VoidType(),
+            [int32, int32, int32, int64, int64, int64, double, pointer, int64]
+            + [pointer, int64, double, pointer, int64],
+        )
+        function = builder.inttoptr(args[0], function_type.as_pointer())
+        row_major, no_trans = ir.Constant(int32, 101), ir.Constant(int32, 111)
+        four, one, zero = ir.Constant(int64, 4), ir.Constant(double, 1.0), ir.Constant(double, 0.0)
+        a_data, b_data, product_data = (builder.inttoptr(arg, pointer) for arg in args[1:])
+        builder.call(
+            function,
+            [row_major, no_trans, no_trans, four, four, four, one, a_data, four]
+            + [b_data, four, zero, product_data, four],
+        )
+        return context.get_dummy_value()
+
+    return signature, codegen
+
+
+@njit(**jit_options())
+def ee_delta_set_point(
+    site_xpos, site_xmat, site, arm_action, max_translation, max_yaw, scale, workspace_lower,
+    workspace_upper, base_inverse, flange_in_site, dgemm, reference, lower, upper, limit_slack,
+    consts, max_jump,
+):  # fmt: skip
+    """``EndEffectorDeltaController.set_point`` in one call: the pose of
+    :func:`tool_target_pose`, the flange's pose in the arm base
+    (``base_inverse @ pose @ flange_in_site``, both C-contiguous, by the ``cblas_dgemm`` at
+    ``dgemm``), then the first of :func:`one_pose_nearest` if no joint moves more than
+    ``max_jump`` from ``reference``: its 6 joint angles, or an empty array where it is refused
+    or there is none."""
+    pose = tool_target_pose(
+        site_xpos, site_xmat, site, arm_action, max_translation, max_yaw, scale,
+        workspace_lower, workspace_upper,
+    )  # fmt: skip
+    first, flange = np.empty((4, 4)), np.empty((4, 4))
+    _dgemm(dgemm, base_inverse.ctypes.data, pose.ctypes.data, first.ctypes.data)
+    _dgemm(dgemm, first.ctypes.data, flange_in_site.ctypes.data, flange.ctypes.data)
+    ordered = one_pose_nearest(flange, reference, lower, upper, limit_slack, consts)
+    if ordered.shape[0] == 0:
+        return np.empty(0)
+    jump = 0.0
+    for j in range(6):
+        jump = max(jump, abs(ordered[0, j] - reference[j]))
+    if jump <= max_jump:
+        return ordered[0].copy()
+    return np.empty(0)

@@ -245,13 +245,20 @@ class ArmIK(ArmPart):
         self, site_pose: np.ndarray, reference: np.ndarray, site: str = WRIST_CAMERA_SITE
     ) -> np.ndarray | None:
         """:meth:`closed_form_nearest` of the pose given as one 4x4 homogeneous matrix."""
+        _, flange_in_site = self.flange_frames(site)
+        ordered = self._one_pose_nearest_first(site_pose, flange_in_site, reference)
+        return np.array(ordered[0]) if len(ordered) else None
+
+    def flange_frames(self, site: str) -> tuple[np.ndarray, np.ndarray]:
+        """``(base_inverse, flange_in_site)``, C-contiguous: the flange's pose in the arm's
+        base frame is ``base_inverse @ site_pose @ flange_in_site`` for the pose of ``site``
+        (fixed to the last link) in the world; for kernels that make the products."""
         flange_in_site = self._flange_from_site(self._arm.site_id(site))
         if flange_in_site is None:
             raise ValueError(
                 f"the closed-form IK needs a site fixed to the last link, not {site!r}"
             )
-        ordered = self._one_pose_nearest_first(site_pose, flange_in_site, reference)
-        return np.array(ordered[0]) if len(ordered) else None
+        return np.ascontiguousarray(self._base_inverse), np.ascontiguousarray(flange_in_site)
 
     def nearest_first(self, candidates: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """IK solutions (rows) shifted by whole turns towards ``reference`` where that stays
