@@ -223,7 +223,9 @@ def solutions_of_one(pose, consts):
 
 @njit(**jit_options())
 def _clipped(value, low, high):
-    """``np.minimum(np.maximum(value, low), high)`` of floats."""
+    """``np.minimum(np.maximum(value, low), high)`` of floats (a NaN passes through)."""
+    if value != value:
+        return value
     raised = value if value >= low else low
     return raised if raised <= high else high
 
@@ -264,8 +266,14 @@ def tool_target_pose(
 
 @intrinsic
 def _dgemm(typingctx, address, a, b, product):
-    """``product = a @ b`` of C-contiguous 4x4 float64 matrices (data pointers) by the
-    ``cblas_dgemm`` at ``address``, called with the arguments numpy's ``matmul`` passes."""
+    """``product = a @ b`` of C-contiguous 4x4 float64 matrices by the ``cblas_dgemm`` at
+    ``address``, called with the arguments numpy's ``matmul`` passes. The arrays themselves
+    are the arguments (not their data pointers), so they live through the call."""
+    for array in (a, b, product):
+        if not (isinstance(array, types.Array) and array.dtype == types.float64):
+            return None
+        if array.ndim != 2 or array.layout != "C":
+            return None
     signature = types.void(address, a, b, product)
 
     def codegen(context, builder, signature, args):
@@ -279,7 +287,10 @@ def _dgemm(typingctx, address, a, b, product):
         function = builder.inttoptr(args[0], function_type.as_pointer())
         row_major, no_trans = ir.Constant(int32, 101), ir.Constant(int32, 111)
         four, one, zero = ir.Constant(int64, 4), ir.Constant(double, 1.0), ir.Constant(double, 0.0)
-        a_data, b_data, product_data = (builder.inttoptr(arg, pointer) for arg in args[1:])
+        a_data, b_data, product_data = (
+            builder.bitcast(context.make_array(kind)(context, builder, value).data, pointer)
+            for kind, value in zip(signature.args[1:], args[1:], strict=True)
+        )
         builder.call(
             function,
             [row_major, no_trans, no_trans, four, four, four, one, a_data, four]
@@ -307,14 +318,13 @@ def ee_delta_set_point(
         workspace_lower, workspace_upper,
     )  # fmt: skip
     first, flange = np.empty((4, 4)), np.empty((4, 4))
-    _dgemm(dgemm, base_inverse.ctypes.data, pose.ctypes.data, first.ctypes.data)
-    _dgemm(dgemm, first.ctypes.data, flange_in_site.ctypes.data, flange.ctypes.data)
+    _dgemm(dgemm, base_inverse, pose, first)
+    _dgemm(dgemm, first, flange_in_site, flange)
     ordered = one_pose_nearest(flange, reference, lower, upper, limit_slack, consts)
     if ordered.shape[0] == 0:
         return np.empty(0)
-    jump = 0.0
     for j in range(6):
-        jump = max(jump, abs(ordered[0, j] - reference[j]))
-    if jump <= max_jump:
-        return ordered[0].copy()
-    return np.empty(0)
+        jump = abs(ordered[0, j] - reference[j])
+        if not jump <= max_jump:  # as np.abs(...).max() <= max_jump: a NaN refuses too
+            return np.empty(0)
+    return ordered[0].copy()

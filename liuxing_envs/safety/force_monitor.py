@@ -43,12 +43,16 @@ class ForceMonitor:
 
     def __init__(self, settings: Safety, substeps: int) -> None:
         self.hard_limit, self.hard_impact_limit = settings.hard_limit, settings.hard_impact_limit
-        self.substeps = substeps
         #: The physics steps of each force sample: FORCE_SAMPLE_SUBSTEPS, the last the rest.
-        self._samples = [
+        self._samples = tuple(
             min(FORCE_SAMPLE_SUBSTEPS, substeps - start)
             for start in range(0, substeps, FORCE_SAMPLE_SUBSTEPS)
-        ]
+        )
+
+    @property
+    def substeps(self) -> int:
+        """Physics steps per control step (fixed when the monitor is made)."""
+        return sum(self._samples)
 
     def run(self, world: GraspWorld) -> ForcePeaks:
         model, data, gripper = world.model, world.data, world.gripper
