@@ -270,9 +270,10 @@ class GraspWorld:
 
     @property
     def compiled(self) -> bool:
-        """Whether the per-step arithmetic (the arm's closed-form IK, the ``ee_delta``
-        target, the observation) runs in the compiled kernels or in their numpy references:
-        one switch, the arm IK's ``compiled``, which tests flip to compare the two."""
+        """Whether the per-step arithmetic (the ``ee_delta`` set-point and the arm's
+        closed-form IK, the observation, the approach query's filter) runs in the compiled
+        kernels or in their references: one switch, the arm IK's ``compiled``, which tests
+        flip to compare the two."""
         return self.arm.ik.compiled
 
     @compiled.setter
