@@ -92,9 +92,17 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
             done = terminated or truncated
         return steps / (time.perf_counter() - start)
 
+    # The recorder sees the bindings' mj_step calls, so the recorded run leaves a compiled
+    # force loop (which calls MuJoCo's C function itself) off; the episodes are the same.
+    worlds = getattr(env.unwrapped, "worlds", ())
+    compiled = [world.compiled for world in worlds]
+    for world in worlds:
+        world.compiled = False
     recorder = _Recorder()
     run_env(recorder)
     recorder.close()
+    for world, was_compiled in zip(worlds, compiled, strict=True):
+        world.compiled = was_compiled
     segments = recorder.segments
     data = {id(s["model"]): mujoco.MjData(s["model"]) for s in segments}
     controls = [np.concatenate(s["controls"]) for s in segments]

@@ -65,11 +65,17 @@ def _instrument_view_planning(env, timer: PhaseTimer) -> None:
 def _instrument_grasp(env, timer: PhaseTimer) -> None:
     import mujoco
 
+    from liuxing_envs import kernels
     from liuxing_envs.sim import grasp_world
     from liuxing_envs.sim.camera import DepthCamera
     from liuxing_envs.sim.gripper import Gripper
 
     timer.wrap(mujoco, "mj_step", "physics (mj_step)")
+    if kernels.available():
+        from liuxing_envs.kernels import force_loop
+
+        # Its mj_step calls, and the force samples between them, in one call.
+        timer.wrap(force_loop, "sleeping_samples", "physics (mj_step)")
     timer.wrap(env.arm_controller, "apply", "controller (IK)")
     timer.wrap(Gripper, "fingertip_forces", "force sensing")
     timer.wrap(grasp_world.GraspWorld, "impact_force", "force sensing")

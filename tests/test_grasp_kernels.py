@@ -20,7 +20,8 @@ from liuxing_envs.sim.scene import WRIST_CAMERA_SITE, load_scene_model, reset_to
 from liuxing_envs.sim.ur_ik import solutions_of_one
 
 pytest.importorskip("numba")
-from liuxing_envs.kernels import one_pose_ik  # noqa: E402
+from liuxing_envs.kernels import force_loop, one_pose_ik  # noqa: E402
+from liuxing_envs.sim.mujoco_errors import error_trap, function_address  # noqa: E402
 from tests.ik_poses import KINDS, pose_of_kind
 from tests.same_bits import assert_same_bits, assert_same_values
 
@@ -148,18 +149,36 @@ def test_ik_queries_answer_the_same_with_the_kernel_on_and_off(arm):
 
 
 def set_compiled(env, compiled):
-    for world in env.unwrapped._worlds.values():
+    for world in env.unwrapped.worlds:
         world.compiled = compiled
 
 
 @pytest.mark.parametrize(
-    ("obs_mode", "force_limit", "seeds"),
-    [("state", None, (0, 1, 2)), ("state", 0.5, (4,)), ("depth", None, (6, 3))],
+    ("obs_mode", "force_limit", "seeds", "press", "statuses"),
+    [
+        ("state", None, (0, 1, 2), False, {force_loop.DONE, force_loop.AWAKE}),
+        ("state", 0.5, (4,), False, {force_loop.DONE, force_loop.AWAKE}),
+        ("state", 0.1, (1, 3, 5), True, {force_loop.STOPPED}),
+        ("depth", None, (6, 3), False, {force_loop.DONE}),
+    ],
 )
-def test_grasp_episodes_are_the_same_with_the_kernel_on_and_off(obs_mode, force_limit, seeds):
+def test_grasp_episodes_are_the_same_with_the_kernel_on_and_off(
+    obs_mode, force_limit, seeds, press, statuses, monkeypatch
+):
     """The privileged expert (grasps, lifts) with noise, and random actions, in two envs
-    stepped alike, one with the kernel and one without; a low force limit (and so hard limit)
-    makes the expert's grasps protective stops."""
+    stepped alike, one with the kernels and one without; a low force limit (and so hard limit)
+    makes the expert's grasps protective stops, and random actions pressing down (``press``)
+    make stops on the tray while the instrument sleeps, which the compiled force loop meets
+    itself. ``statuses``: how the compiled force loop must have ended at least once."""
+    seen = set()
+    sleeping_samples = force_loop.sleeping_samples
+
+    def spy(*arguments):
+        status, sample = sleeping_samples(*arguments)
+        seen.add(status)
+        return status, sample
+
+    monkeypatch.setattr(force_loop, "sleeping_samples", spy)
     kwargs = {"obs_mode": obs_mode, "instruments": ["scalpel", "tissue_forceps"]}
     if obs_mode == "depth":
         kwargs["resolution"] = 32
@@ -180,6 +199,8 @@ def test_grasp_episodes_are_the_same_with_the_kernel_on_and_off(obs_mode, force_
             while not done and step < 200:
                 if expert is None:
                     action = rng.uniform(-1.0, 1.0, envs[0].action_space.shape)
+                    if press:
+                        action[2] = -1.0
                 else:
                     action, _ = expert.predict(observation)
                     if rng.random() < 0.1:
@@ -193,8 +214,9 @@ def test_grasp_episodes_are_the_same_with_the_kernel_on_and_off(obs_mode, force_
                 stopped += info["hard_limit_exceeded"]
                 step += 1
                 steps += 1
-        assert steps >= 130 * len(seeds)
+        assert steps >= (40 if press else 130) * len(seeds)
         assert grasped > 0 if force_limit is None else stopped > 0
+        assert statuses <= seen
     finally:
         for env in envs:
             env.close()
@@ -204,7 +226,7 @@ def test_the_gripper_s_float_reads_and_slice_writes_match_the_arrays():
     env = gym.make("InstrumentGrasp-v1")
     try:
         env.reset(seed=0)
-        for world in env.unwrapped._worlds.values():
+        for world in env.unwrapped.worlds:
             gripper = world.gripper
             assert gripper.finger_actuators.tolist() == list(
                 range(gripper._fingers.start, gripper._fingers.stop)
@@ -351,3 +373,83 @@ def test_the_approach_query_skips_only_pads_far_from_the_instrument(compiled):
         assert near_steps > 200
     finally:
         env.close()
+
+
+#: A chain of 30 hinged balls with too little memory for a step: MuJoCo's stack overflows.
+_STARVED_MODEL = (
+    "<mujoco><size memory='4K'/><worldbody>"
+    + "<body pos='0 0 .1'><joint type='hinge'/><geom size='.05'/>" * 30
+    + "</body>" * 30
+    + "</worldbody></mujoco>"
+)
+_FREE_BALL = (
+    "<mujoco><worldbody><body pos='0 0 .2'><freejoint/><geom size='.1'/></body>"
+    "<geom type='plane' size='1 1 .1'/></worldbody></mujoco>"
+)
+
+
+def force_loop_layout(model, data):
+    """The force loop's layout for a model without pads: touches read sensordata[0] (there is
+    none, so a one-entry array stands in) and tree 0 (the ball's)."""
+    trap = error_trap()
+    layout = np.zeros(force_loop.LAYOUT_SIZE, dtype=np.int64)
+    layout[force_loop.MJ_STEP] = function_address("mj_step")
+    layout[force_loop.SET_HANDLER], layout[force_loop.HANDLER] = trap.set_handler, trap.handler
+    layout[force_loop.JUMP_BUFFER] = trap.jump_buffer.ctypes.data
+    layout[force_loop.MODEL], layout[force_loop.DATA] = model._address, data._address
+    return layout
+
+
+def installed_log_handler():
+    """This thread's log handler, as MuJoCo's setter reports it (0: none)."""
+    import ctypes
+
+    setter = ctypes.CFUNCTYPE(ctypes.c_void_p, ctypes.c_void_p)(error_trap().set_handler)
+    current = setter(None)
+    setter(current)
+    return current or 0
+
+
+def test_the_force_loop_steps_as_mj_step_does_and_leaves_no_handler_installed():
+    model = mujoco.MjModel.from_xml_string(_FREE_BALL)
+    data, reference = mujoco.MjData(model), mujoco.MjData(model)
+    for state in (data, reference):
+        state.qvel[:] = [0.3, -0.2, 1.0, 2.0, 1.0, 0.5]
+    samples = np.array([5, 5, 3], dtype=np.int64)
+    awake = np.full(1, -1, dtype=np.int32)  # a tree that never sleeps: one sample per call
+    peaks, limits = np.zeros(3), np.array([1.0, 1.0])
+    sample = 0
+    while sample < len(samples):
+        status, sample = force_loop.sleeping_samples(
+            force_loop_layout(model, data), samples, sample, model.opt.noslip_iterations,
+            np.zeros(1), awake, peaks, limits,
+        )  # fmt: skip
+        assert status == force_loop.AWAKE
+        mujoco.mj_step(model, reference, int(samples[sample]))
+        assert_same_bits(data.qpos, reference.qpos)
+        assert_same_bits(data.qvel, reference.qvel)
+        sample += 1
+    assert installed_log_handler() == 0
+
+
+def test_a_mujoco_error_in_the_force_loop_raises_as_the_bindings_raise_it():
+    model = mujoco.MjModel.from_xml_string(_STARVED_MODEL)
+    with pytest.raises(mujoco.FatalError) as from_bindings:
+        mujoco.mj_step(model, mujoco.MjData(model))
+    data = mujoco.MjData(model)
+    trap = error_trap()
+    status, _ = force_loop.sleeping_samples(
+        force_loop_layout(model, data), np.array([5], dtype=np.int64), 0, 0, np.zeros(1),
+        np.zeros(1, dtype=np.int32), np.zeros(3), np.array([1.0, 1.0]),
+    )  # fmt: skip
+    assert status == force_loop.FAILED
+    assert installed_log_handler() == 0
+    error = trap.error()
+    assert isinstance(error, mujoco.FatalError)
+    assert str(error).splitlines()[0] == str(from_bindings.value).splitlines()[0]
+    assert "mj_stackAlloc: out of memory" in str(error)
+    # The process goes on, and so do the bindings' own error and a healthy model's steps.
+    with pytest.raises(mujoco.FatalError):
+        mujoco.mj_step(model, mujoco.MjData(model))
+    healthy = mujoco.MjModel.from_xml_string(_FREE_BALL)
+    mujoco.mj_step(healthy, mujoco.MjData(healthy), 10)

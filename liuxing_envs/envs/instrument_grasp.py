@@ -243,6 +243,12 @@ class InstrumentGraspEnv(LiuxingEnv):
     encode_depth = staticmethod(encode_depth)
     decode_depth = staticmethod(decode_depth)
 
+    @property
+    def worlds(self) -> tuple[GraspWorld, ...]:
+        """Every instrument's world (one MuJoCo model each), in ``instrument_names``' order;
+        :attr:`world` is the episode's."""
+        return tuple(self._worlds.values())
+
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         self.closed = False  # reopened: renderers are made again when needed

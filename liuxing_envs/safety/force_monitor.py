@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, NamedTuple
 
 import mujoco
+import numpy as np
 
 from liuxing_envs.sim.gripper import GRASP_NOSLIP_ITERATIONS
 from liuxing_envs.sim.stability import diverged_since, divergence_count
@@ -48,6 +49,15 @@ class ForceMonitor:
             min(FORCE_SAMPLE_SUBSTEPS, substeps - start)
             for start in range(0, substeps, FORCE_SAMPLE_SUBSTEPS)
         )
+        #: The compiled loop's arguments, for the world whose data they were made for
+        #: (addresses of this process: never pickled).
+        self._compiled_for: mujoco.MjData | None = None
+        self._compiled_arguments: tuple | None = None
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_compiled_for"] = state["_compiled_arguments"] = None
+        return state
 
     @property
     def substeps(self) -> int:
@@ -55,27 +65,44 @@ class ForceMonitor:
         return sum(self._samples)
 
     def run(self, world: GraspWorld) -> ForcePeaks:
-        model, data, gripper = world.model, world.data, world.gripper
+        divergences = divergence_count(world.data)
+        peaks, first, stepped = (0.0, 0.0, 0.0), 0, False
+        if world.compiled and self._compiled_loop(world) is not None:
+            peaks, first, stepped, stopped = self._run_compiled(world)
+        else:
+            stopped = False
+        if not stopped and first < len(self._samples):
+            peaks, stopped = self._run_python(world, peaks, first, stepped)
+        if stopped:
+            peaks = self._stop(world, peaks)
+        # Checked once per control step: after a divergence MuJoCo's reset state is finite,
+        # so the loop above runs on harmlessly, and its figures are discarded by the caller.
+        diverged = diverged_since(world.data, divergences)
+        return ForcePeaks(*peaks, stopped, diverged)
+
+    def _run_python(self, world: GraspWorld, peaks: tuple, first: int, stepped: bool):
+        """The samples from ``first`` (whose physics has run already when ``stepped``):
+        ``(peaks, stopped)``."""
+        model, data = world.model, world.data
         # This loop runs once per force sample (five times a step by default), so it keeps to
         # Python floats and plain comparisons (numpy's and max()'s per-call overhead cost more
         # than the bookkeeping's arithmetic), looks the methods and settings it calls up once
         # (``mujoco.mj_step`` once per call: a benchmark wraps it) and passes ``nstep`` by
         # position, which pybind11 takes faster than a keyword.
-        forces, impact_force = gripper.fingertip_force_values, world.impact_force
+        forces, impact_force = world.gripper.fingertip_force_values, world.impact_force
         step, options = mujoco.mj_step, model.opt
         hard_limit, hard_impact_limit = self.hard_limit, self.hard_impact_limit
-        peak_left = peak_right = impact_peak = 0.0
-        stopped = False
+        peak_left, peak_right, impact_peak = peaks
         left, right = forces()
-        divergences = divergence_count(data)
         noslip = options.noslip_iterations
-        for substeps in self._samples:
-            # Noslip iterations stop a held instrument creeping in the pads; they cost a third
-            # of a physics step, so they run only while a pad touches something.
-            wanted = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
-            if wanted != noslip:
-                options.noslip_iterations = noslip = wanted
-            step(model, data, substeps)
+        for sample in range(first, len(self._samples)):
+            if sample > first or not stepped:
+                # Noslip iterations stop a held instrument creeping in the pads; they cost a
+                # third of a physics step, so they run only while a pad touches something.
+                wanted = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
+                if wanted != noslip:
+                    options.noslip_iterations = noslip = wanted
+                step(model, data, self._samples[sample])
             left, right = forces()
             impact = impact_force()
             # As max(): a new peak only where it is higher (NaN never is).
@@ -86,20 +113,83 @@ class ForceMonitor:
             if impact > impact_peak:
                 impact_peak = impact
             if peak_left > hard_limit or peak_right > hard_limit or impact_peak > hard_impact_limit:
-                # Protective stop: hold the arm and the fingers where they are and end the step
-                # (and the episode) here.
-                world.set_arm_ctrl(world.arm.qpos)
-                gripper.command(gripper.opening())
-                stopped = True
-                step(model, data, FORCE_SAMPLE_SUBSTEPS)
-                left, right = forces()
-                peak_left, peak_right = max(peak_left, left), max(peak_right, right)
-                impact_peak = max(impact_peak, impact_force())
+                return (peak_left, peak_right, impact_peak), True
+        return (peak_left, peak_right, impact_peak), False
+
+    def _run_compiled(self, world: GraspWorld):
+        """The samples the compiled loop takes, while the instrument sleeps: ``(peaks, the
+        sample the Python loop goes on from, whether that sample's physics has run, stopped)``."""
+        from liuxing_envs.kernels import force_loop as kernel
+
+        layout, samples, sensordata, tree_asleep, limits, trap = self._compiled_arguments
+        options = world.model.opt
+        peaks = np.zeros(3)
+        first = 0
+        while True:
+            status, first = kernel.sleeping_samples(
+                layout, samples, first, options.noslip_iterations, sensordata, tree_asleep,
+                peaks, limits,
+            )  # fmt: skip
+            if status != kernel.NOSLIP:
                 break
-        # Checked once per control step: after a divergence MuJoCo's reset state is finite,
-        # so the loop above runs on harmlessly, and its figures are discarded by the caller.
-        diverged = diverged_since(data, divergences)
-        return ForcePeaks(peak_left, peak_right, impact_peak, stopped, diverged)
+            left, right = world.gripper.fingertip_force_values()
+            options.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
+        if status == kernel.FAILED:
+            raise trap.error()
+        peaks = tuple(peaks.tolist())
+        if status == kernel.STOPPED:
+            return peaks, first, True, True
+        return peaks, first, status == kernel.AWAKE, False
+
+    def _compiled_loop(self, world: GraspWorld):
+        """The compiled loop's arguments for ``world`` (made once per world), or None where
+        a kernel cannot call MuJoCo safely here (:mod:`liuxing_envs.sim.mujoco_errors`)."""
+        if self._compiled_for is world.data:
+            return self._compiled_arguments
+        from liuxing_envs.kernels import force_loop as kernel
+        from liuxing_envs.sim.mujoco_errors import error_trap, function_address
+
+        trap, mj_step = error_trap(), function_address("mj_step")
+        if trap is None or mj_step is None:
+            return None
+        layout = np.empty(kernel.LAYOUT_SIZE, dtype=np.int64)
+        layout[kernel.MJ_STEP], layout[kernel.SET_HANDLER] = mj_step, trap.set_handler
+        layout[kernel.HANDLER], layout[kernel.JUMP_BUFFER] = (
+            trap.handler,
+            trap.jump_buffer.ctypes.data,
+        )
+        layout[kernel.MODEL], layout[kernel.DATA] = world.model._address, world.data._address
+        layout[[kernel.LEFT_TOUCH, kernel.RIGHT_TOUCH]] = world.gripper.touch_addresses
+        layout[kernel.TREE] = world.instrument_tree
+        layout[kernel.NOSLIP_WHEN_TOUCHING] = GRASP_NOSLIP_ITERATIONS
+        limits = np.array([self.hard_limit, self.hard_impact_limit], dtype=np.float64)
+        samples = np.array(self._samples, dtype=np.int64)
+        data = world.data
+        self._compiled_arguments = (
+            layout,
+            samples,
+            data.sensordata,
+            data.tree_asleep,
+            limits,
+            trap,
+        )
+        self._compiled_for = data
+        return self._compiled_arguments
+
+    def _stop(self, world: GraspWorld, peaks: tuple) -> tuple:
+        """Protective stop: hold the arm and the fingers where they are and step one force
+        sample more; the peaks with that sample's."""
+        gripper = world.gripper
+        world.set_arm_ctrl(world.arm.qpos)
+        gripper.command(gripper.opening())
+        mujoco.mj_step(world.model, world.data, FORCE_SAMPLE_SUBSTEPS)
+        left, right = gripper.fingertip_force_values()
+        peak_left, peak_right, impact_peak = peaks
+        return (
+            max(peak_left, left),
+            max(peak_right, right),
+            max(impact_peak, world.impact_force()),
+        )
 
     def broke_limit(self, peaks: ForcePeaks) -> bool:
         """Whether the step's peaks passed a hard limit."""

@@ -94,7 +94,8 @@ class GraspWorld:
         self.gripper = Gripper(self.model, self.data)
         model = self.model
         self.body = model.body(self.PREFIX + "body").id
-        self._tree = model.body_treeid[self.body]
+        #: The instrument's kinematic tree (MuJoCo sleeps and wakes whole trees).
+        self.instrument_tree = int(model.body_treeid[self.body])
         self._pad_geoms = set(self.gripper.pad_geoms.tolist())
         self._joint_qpos = model.jnt_qposadr[model.joint(self.PREFIX + "joint").id]
         self._joint_dof = model.jnt_dofadr[model.joint(self.PREFIX + "joint").id]
@@ -271,9 +272,11 @@ class GraspWorld:
     @property
     def compiled(self) -> bool:
         """Whether the per-step arithmetic (the ``ee_delta`` set-point and the arm's
-        closed-form IK, the observation, the approach query's filter) runs in the compiled
-        kernels or in their references: one switch, the arm IK's ``compiled``, which tests
-        flip to compare the two."""
+        closed-form IK, the observation, the approach query's filter, the force monitor's
+        loop while the instrument sleeps) runs in the compiled kernels or in their
+        references: one switch, the arm IK's ``compiled``, which tests flip to compare the
+        two (and spies on ``mujoco.mj_step`` turn off: the compiled loop calls MuJoCo's C
+        function itself)."""
         return self.arm.ik.compiled
 
     @compiled.setter
@@ -348,7 +351,7 @@ class GraspWorld:
 
     def asleep(self) -> bool:
         """Whether the instrument is asleep: at rest and touched by nothing awake."""
-        return bool(self.data.tree_asleep[self._tree] >= 0)
+        return bool(self.data.tree_asleep[self.instrument_tree] >= 0)
 
     def pad_approaches(self, distance: float) -> list[float]:
         """How far (m) the arm's set-point would move each pad toward the instrument, for the
