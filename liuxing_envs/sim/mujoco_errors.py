@@ -17,7 +17,6 @@ is None and callers keep the bindings' calls.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import functools
 from pathlib import Path
 from typing import NamedTuple
@@ -78,11 +77,13 @@ def error_trap() -> ErrorTrap | None:
     missing."""
     set_handler = function_address("_mjPRIVATE_setTlsLogHandler")
     global_handler = function_address("_mjPRIVATE_getGlobalLogHandler")
-    libc = ctypes.util.find_library("c")
-    if set_handler is None or global_handler is None or libc is None:
+    if set_handler is None or global_handler is None:
         return None
-    c_library = ctypes.CDLL(libc)
-    if not all(hasattr(c_library, name) for name in ("_setjmp", "longjmp", "memcpy")):
+    try:
+        process = ctypes.CDLL(None)  # the symbols the process has loaded, the C library's too
+    except (OSError, TypeError):  # no such handle (Windows)
+        return None
+    if not all(hasattr(process, name) for name in ("_setjmp", "longjmp", "memcpy")):
         return None
     jump_buffer = np.zeros(_JUMP_BUFFER_BYTES, dtype=np.uint8)
     message = np.zeros(_SUBJECT_SIZE, dtype=np.uint8)
