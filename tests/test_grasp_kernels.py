@@ -388,15 +388,24 @@ _FREE_BALL = (
 )
 
 
-def force_loop_layout(model, data):
-    """The force loop's layout for a model without pads: touches read sensordata[0] (there is
-    none, so a one-entry array stands in) and tree 0 (the ball's)."""
+def force_loop_layout(model, data, sensordata, tree_asleep):
+    """The force loop's layout for a model without pads: its touches read ``sensordata[0]``
+    and its instrument's tree is ``tree_asleep[0]`` (arrays that stand in for mjData's)."""
+    from liuxing_envs.sim.stability import DIVERGENCE_WARNINGS
+
     trap = error_trap()
     layout = np.zeros(force_loop.LAYOUT_SIZE, dtype=np.int64)
     layout[force_loop.MJ_STEP] = function_address("mj_step")
     layout[force_loop.SET_HANDLER], layout[force_loop.HANDLER] = trap.set_handler, trap.handler
     layout[force_loop.JUMP_BUFFER] = trap.jump_buffer.ctypes.data
     layout[force_loop.MODEL], layout[force_loop.DATA] = model._address, data._address
+    layout[force_loop.SENSORDATA] = sensordata.ctypes.data
+    layout[force_loop.TREE_ASLEEP] = tree_asleep.ctypes.data
+    layout[force_loop.QPOS], layout[force_loop.QVEL] = data.qpos.ctypes.data, data.qvel.ctypes.data
+    layout[force_loop.NQ], layout[force_loop.NV] = model.nq, model.nv
+    layout[force_loop.WARNING_NUMBERS] = data.warning.number.ctypes.data
+    layout[force_loop.WARNING_STRIDE] = data.warning.number.strides[0]
+    layout[force_loop.DIVERGENCE_WARNINGS :] = [int(w) for w in DIVERGENCE_WARNINGS]
     return layout
 
 
@@ -417,19 +426,64 @@ def test_the_force_loop_steps_as_mj_step_does_and_leaves_no_handler_installed():
         state.qvel[:] = [0.3, -0.2, 1.0, 2.0, 1.0, 0.5]
     samples = np.array([5, 5, 3], dtype=np.int64)
     awake = np.full(1, -1, dtype=np.int32)  # a tree that never sleeps: one sample per call
-    peaks, limits = np.zeros(3), np.array([1.0, 1.0])
+    layout = force_loop_layout(model, data, np.zeros(1), awake)
+    peaks, limits, divergence = np.zeros(3), np.array([1.0, 1.0]), np.zeros(2, dtype=np.int64)
     sample = 0
     while sample < len(samples):
         status, sample = force_loop.sleeping_samples(
-            force_loop_layout(model, data), samples, sample, model.opt.noslip_iterations,
-            np.zeros(1), awake, peaks, limits,
-        )  # fmt: skip
+            layout, samples, sample, model.opt.noslip_iterations, peaks, limits, divergence
+        )
         assert status == force_loop.AWAKE
         mujoco.mj_step(model, reference, int(samples[sample]))
         assert_same_bits(data.qpos, reference.qpos)
         assert_same_bits(data.qvel, reference.qvel)
         sample += 1
     assert installed_log_handler() == 0
+    # Asleep, the same samples in one call, with the step's divergence verdict.
+    awake[0] = 0
+    for state in (data, reference):
+        mujoco.mj_resetData(model, state)
+        state.qvel[:] = [0.3, -0.2, 1.0, 2.0, 1.0, 0.5]
+    assert force_loop.sleeping_samples(
+        layout, samples, 0, model.opt.noslip_iterations, peaks, limits, divergence
+    ) == (force_loop.DONE, len(samples))
+    mujoco.mj_step(model, reference, int(samples.sum()))
+    assert_same_bits(data.qpos, reference.qpos)
+    assert divergence.tolist() == [0, force_loop.STABLE]
+
+
+@pytest.mark.parametrize(
+    ("value", "verdict"),
+    [(np.nan, "DIVERGED"), (-np.inf, "DIVERGED"), (1e301, "UNDECIDED"), (1e200, "STABLE")],
+)
+def test_the_force_loop_s_divergence_verdict_is_what_numpy_s_sums_decide(value, verdict):
+    """A state the kernel leaves is judged as ``diverged_since``'s sum of qpos and qvel
+    judges it, or left to that sum where only numpy's order of summing decides (a sample of
+    no physics steps, so that MuJoCo's own checks do not reset the value first); a step
+    that MuJoCo resets, counting a warning, is a divergence."""
+    from liuxing_envs.sim.stability import diverged_since, divergence_count
+
+    model = mujoco.MjModel.from_xml_string(_FREE_BALL)
+    data = mujoco.MjData(model)
+    layout = force_loop_layout(model, data, np.zeros(1), np.zeros(1, dtype=np.int32))
+    divergence, peaks, limits = np.zeros(2, dtype=np.int64), np.zeros(3), np.array([1.0, 1.0])
+
+    def run(steps):
+        samples = np.array([steps], dtype=np.int64)
+        count = divergence_count(data)
+        status, _ = force_loop.sleeping_samples(layout, samples, 0, 0, peaks, limits, divergence)
+        assert status == force_loop.DONE and divergence[force_loop.COUNT_AT_START] == count
+        return count
+
+    data.qvel[3] = value
+    count = run(0)
+    assert divergence[force_loop.VERDICT] == getattr(force_loop, verdict)
+    if verdict != "UNDECIDED":
+        assert (verdict == "DIVERGED") == diverged_since(data, count)
+    if not np.isfinite(value):
+        run(1)  # MuJoCo's check finds it, resets the data and counts a warning
+        assert divergence_count(data) == count + 1
+        assert divergence[force_loop.VERDICT] == force_loop.DIVERGED
 
 
 def test_a_mujoco_error_in_the_force_loop_raises_as_the_bindings_raise_it():
@@ -438,9 +492,10 @@ def test_a_mujoco_error_in_the_force_loop_raises_as_the_bindings_raise_it():
         mujoco.mj_step(model, mujoco.MjData(model))
     data = mujoco.MjData(model)
     trap = error_trap()
+    layout = force_loop_layout(model, data, np.zeros(1), np.zeros(1, dtype=np.int32))
     status, _ = force_loop.sleeping_samples(
-        force_loop_layout(model, data), np.array([5], dtype=np.int64), 0, 0, np.zeros(1),
-        np.zeros(1, dtype=np.int32), np.zeros(3), np.array([1.0, 1.0]),
+        layout, np.array([5], dtype=np.int64), 0, 0, np.zeros(3), np.array([1.0, 1.0]),
+        np.zeros(2, dtype=np.int64),
     )  # fmt: skip
     assert status == force_loop.FAILED
     assert installed_log_handler() == 0

@@ -16,6 +16,8 @@ holds the GIL (no ``nogil``): no two threads are inside it at once.
 
 from __future__ import annotations
 
+import math
+
 from llvmlite import ir
 from numba import njit, types
 from numba.core import cgutils
@@ -23,10 +25,25 @@ from numba.extending import intrinsic
 
 from liuxing_envs.kernels import jit_options
 
-#: Entries of the ``layout`` argument (int64): function and buffer addresses, then ids.
+#: Entries of the ``layout`` argument (int64): function and buffer addresses; the addresses
+#: of ``mjData``'s arrays that the kernel reads (``sensordata``, ``tree_asleep``, ``qpos``,
+#: ``qvel``, and the first warning's ``number``, whose entries lie WARNING_STRIDE bytes
+#: apart); ids and sizes.
 MJ_STEP, SET_HANDLER, HANDLER, JUMP_BUFFER, MODEL, DATA = range(6)
-LEFT_TOUCH, RIGHT_TOUCH, TREE, NOSLIP_WHEN_TOUCHING = range(6, 10)
-LAYOUT_SIZE = 10
+SENSORDATA, TREE_ASLEEP, QPOS, QVEL, WARNING_NUMBERS, WARNING_STRIDE = range(6, 12)
+LEFT_TOUCH, RIGHT_TOUCH, TREE, NOSLIP_WHEN_TOUCHING, NQ, NV = range(12, 18)
+#: ``layout[DIVERGENCE_WARNINGS:]``: the warnings that count a divergence (MuJoCo's bad
+#: qpos, qvel and qacc).
+DIVERGENCE_WARNINGS = 18
+LAYOUT_SIZE = 21
+#: Entries of the ``divergence`` argument (int64, written): the divergence warnings counted
+#: when the kernel started, and, when it returns DONE, its verdict on the step:
+COUNT_AT_START, VERDICT = range(2)
+#: not diverged, diverged, or undecided (a finite value over HUGE in ``qpos`` or ``qvel``,
+#: whose sum may or may not overflow in numpy's order: the caller sums them).
+STABLE, DIVERGED, UNDECIDED = range(3)
+#: Below this size n finite values sum to a finite value in any order (n < 1e8).
+HUGE = 1e300
 #: Entries of the ``limits`` argument (float64): the hard limits of a pad and of an impact.
 HARD_LIMIT, HARD_IMPACT_LIMIT = range(2)
 
@@ -87,15 +104,68 @@ def _call_model_data(typingctx, function_address, model_address, data_address):
     return types.void(types.int64, types.int64, types.int64), codegen
 
 
+@intrinsic
+def _load_float(typingctx, address):
+    """The float64 at ``address``."""
+
+    def codegen(context, builder, signature, args):
+        pointer = builder.inttoptr(args[0], ir.DoubleType().as_pointer())
+        return builder.load(pointer)
+
+    return types.float64(types.int64), codegen
+
+
+@intrinsic
+def _load_int(typingctx, address):
+    """The int32 at ``address``."""
+
+    def codegen(context, builder, signature, args):
+        pointer = builder.inttoptr(args[0], ir.IntType(32).as_pointer())
+        return builder.load(pointer)
+
+    return types.int32(types.int64), codegen
+
+
+@njit(**jit_options())
+def _divergences(layout):
+    """How many times MuJoCo has counted a divergence warning (as ``divergence_count``)."""
+    count = 0
+    for k in range(DIVERGENCE_WARNINGS, LAYOUT_SIZE):
+        count += _load_int(layout[WARNING_NUMBERS] + layout[WARNING_STRIDE] * layout[k])
+    return count
+
+
+@njit(**jit_options())
+def _verdict(layout, count_at_start):
+    """STABLE, DIVERGED or UNDECIDED (see the constants), as ``diverged_since`` would say."""
+    if _divergences(layout) > count_at_start:
+        return DIVERGED
+    undecided = False
+    for base, size in ((layout[QPOS], layout[NQ]), (layout[QVEL], layout[NV])):
+        for i in range(size):
+            value = _load_float(base + 8 * i)
+            if not math.isfinite(value):
+                return DIVERGED  # numpy's sum is NaN or infinite too
+            if abs(value) > HUGE:
+                undecided = True
+    return UNDECIDED if undecided else STABLE
+
+
 @njit(**{**jit_options(), "nogil": False})
-def sleeping_samples(layout, samples, start, noslip, sensordata, tree_asleep, peaks, limits):
+def sleeping_samples(layout, samples, start, noslip, peaks, limits, divergence):
     """Run the force samples from ``start``: per sample, its ``samples[k]`` physics steps,
     then the pad forces into ``peaks`` (float64: left, right, impact; updated in place).
 
     Returns ``(status, k)``: one of the module's status codes and the sample it stopped at
-    (``len(samples)`` when DONE). ``noslip``: the model's current noslip iterations."""
+    (``len(samples)`` when DONE). ``noslip``: the model's current noslip iterations.
+    ``divergence`` (int64): see COUNT_AT_START (written when ``start`` is 0) and VERDICT.
+    """
     model, data = layout[MODEL], layout[DATA]
-    left_touch, right_touch = layout[LEFT_TOUCH], layout[RIGHT_TOUCH]
+    left_touch = layout[SENSORDATA] + 8 * layout[LEFT_TOUCH]
+    right_touch = layout[SENSORDATA] + 8 * layout[RIGHT_TOUCH]
+    instrument_asleep = layout[TREE_ASLEEP] + 4 * layout[TREE]
+    if start == 0:  # later calls of the same step go on from its earlier ones
+        divergence[COUNT_AT_START] = _divergences(layout)
     previous = _swap_handler(layout[SET_HANDLER], layout[HANDLER])
     # When this returns a second time (the error handler's jump), only values set before it
     # are read: a local changed after setjmp is indeterminate after the jump.
@@ -104,7 +174,7 @@ def sleeping_samples(layout, samples, start, noslip, sensordata, tree_asleep, pe
         return FAILED, start
     sample = start
     while sample < samples.shape[0]:
-        left, right = sensordata[left_touch], sensordata[right_touch]
+        left, right = _load_float(left_touch), _load_float(right_touch)
         # As ``max(left, right) > 0.0`` on Python floats (a NaN on the left stays).
         touching = (right if right > left else left) > 0.0
         wanted = layout[NOSLIP_WHEN_TOUCHING] if touching else 0
@@ -113,8 +183,8 @@ def sleeping_samples(layout, samples, start, noslip, sensordata, tree_asleep, pe
             return NOSLIP, sample
         for _ in range(samples[sample]):
             _call_model_data(layout[MJ_STEP], model, data)
-        left, right = sensordata[left_touch], sensordata[right_touch]
-        if tree_asleep[layout[TREE]] < 0:
+        left, right = _load_float(left_touch), _load_float(right_touch)
+        if _load_int(instrument_asleep) < 0:
             _swap_handler(layout[SET_HANDLER], previous)
             return AWAKE, sample
         # A sleeping instrument feels no impact (0.0, never a new peak).
@@ -128,4 +198,5 @@ def sleeping_samples(layout, samples, start, noslip, sensordata, tree_asleep, pe
             return STOPPED, sample
         sample += 1
     _swap_handler(layout[SET_HANDLER], previous)
+    divergence[VERDICT] = _verdict(layout, divergence[COUNT_AT_START])
     return DONE, sample

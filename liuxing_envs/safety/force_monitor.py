@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 
 from liuxing_envs.sim.gripper import GRASP_NOSLIP_ITERATIONS
-from liuxing_envs.sim.stability import diverged_since, divergence_count
+from liuxing_envs.sim.stability import DIVERGENCE_WARNINGS, diverged_since, divergence_count
 
 if TYPE_CHECKING:
     from liuxing_envs.envs.instrument_grasp_settings import Safety
@@ -65,19 +65,22 @@ class ForceMonitor:
         return sum(self._samples)
 
     def run(self, world: GraspWorld) -> ForcePeaks:
-        divergences = divergence_count(world.data)
-        peaks, first, stepped = (0.0, 0.0, 0.0), 0, False
-        if world.compiled and self._compiled_loop(world) is not None:
-            peaks, first, stepped, stopped = self._run_compiled(world)
+        arguments = self._compiled_loop(world) if world.compiled else None
+        if arguments is None:
+            divergences = divergence_count(world.data)
+            peaks, stopped = self._run_python(world, (0.0, 0.0, 0.0), 0, False)
+            diverged = None
         else:
-            stopped = False
-        if not stopped and first < len(self._samples):
-            peaks, stopped = self._run_python(world, peaks, first, stepped)
+            peaks, first, stopped, divergences, diverged = self._run_compiled(world, arguments)
+            if not stopped and first < len(self._samples):
+                peaks, stopped = self._run_python(world, peaks, first, True)
         if stopped:
             peaks = self._stop(world, peaks)
-        # Checked once per control step: after a divergence MuJoCo's reset state is finite,
-        # so the loop above runs on harmlessly, and its figures are discarded by the caller.
-        diverged = diverged_since(world.data, divergences)
+        if diverged is None:
+            # Checked once per control step: after a divergence MuJoCo's reset state is
+            # finite, so the loop above runs on harmlessly, and its figures are discarded by
+            # the caller.
+            diverged = diverged_since(world.data, divergences)
         return ForcePeaks(*peaks, stopped, diverged)
 
     def _run_python(self, world: GraspWorld, peaks: tuple, first: int, stepped: bool):
@@ -116,30 +119,32 @@ class ForceMonitor:
                 return (peak_left, peak_right, impact_peak), True
         return (peak_left, peak_right, impact_peak), False
 
-    def _run_compiled(self, world: GraspWorld):
+    def _run_compiled(self, world: GraspWorld, arguments: tuple):
         """The samples the compiled loop takes, while the instrument sleeps: ``(peaks, the
-        sample the Python loop goes on from, whether that sample's physics has run, stopped)``."""
+        sample whose physics it ran last, stopped, the divergence count before the step,
+        whether the step diverged)``, the last None where the Python loop goes on from that
+        sample or the kernel cannot decide (then the caller checks)."""
         from liuxing_envs.kernels import force_loop as kernel
 
-        layout, samples, sensordata, tree_asleep, limits, trap = self._compiled_arguments
+        layout, samples, limits, divergence, trap = arguments
         options = world.model.opt
         peaks = np.zeros(3)
         first = 0
         while True:
             status, first = kernel.sleeping_samples(
-                layout, samples, first, options.noslip_iterations, sensordata, tree_asleep,
-                peaks, limits,
-            )  # fmt: skip
+                layout, samples, first, options.noslip_iterations, peaks, limits, divergence
+            )
             if status != kernel.NOSLIP:
                 break
             left, right = world.gripper.fingertip_force_values()
             options.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
         if status == kernel.FAILED:
             raise trap.error()
-        peaks = tuple(peaks.tolist())
-        if status == kernel.STOPPED:
-            return peaks, first, True, True
-        return peaks, first, status == kernel.AWAKE, False
+        count, verdict = divergence.tolist()
+        diverged = None
+        if status == kernel.DONE and verdict != kernel.UNDECIDED:
+            diverged = verdict == kernel.DIVERGED
+        return tuple(peaks.tolist()), first, status == kernel.STOPPED, count, diverged
 
     def _compiled_loop(self, world: GraspWorld):
         """The compiled loop's arguments for ``world`` (made once per world), or None where
@@ -152,27 +157,33 @@ class ForceMonitor:
         trap, mj_step = error_trap(), function_address("mj_step")
         if trap is None or mj_step is None:
             return None
+        data = world.data
         layout = np.empty(kernel.LAYOUT_SIZE, dtype=np.int64)
         layout[kernel.MJ_STEP], layout[kernel.SET_HANDLER] = mj_step, trap.set_handler
-        layout[kernel.HANDLER], layout[kernel.JUMP_BUFFER] = (
-            trap.handler,
-            trap.jump_buffer.ctypes.data,
-        )
-        layout[kernel.MODEL], layout[kernel.DATA] = world.model._address, world.data._address
+        layout[kernel.HANDLER] = trap.handler
+        layout[kernel.JUMP_BUFFER] = trap.jump_buffer.ctypes.data
+        layout[kernel.MODEL], layout[kernel.DATA] = world.model._address, data._address
+        # The arrays are views of mjData's own memory, which stays where it is while data lives
+        # (this monitor keeps a reference to it with the addresses).
+        warnings = data.warning.number
+        for entry, array in (
+            (kernel.SENSORDATA, data.sensordata),
+            (kernel.TREE_ASLEEP, data.tree_asleep),
+            (kernel.QPOS, data.qpos),
+            (kernel.QVEL, data.qvel),
+            (kernel.WARNING_NUMBERS, warnings),
+        ):
+            layout[entry] = array.ctypes.data
+        layout[kernel.WARNING_STRIDE] = warnings.strides[0]
         layout[[kernel.LEFT_TOUCH, kernel.RIGHT_TOUCH]] = world.gripper.touch_addresses
         layout[kernel.TREE] = world.instrument_tree
         layout[kernel.NOSLIP_WHEN_TOUCHING] = GRASP_NOSLIP_ITERATIONS
+        layout[kernel.NQ], layout[kernel.NV] = world.model.nq, world.model.nv
+        layout[kernel.DIVERGENCE_WARNINGS :] = [int(warning) for warning in DIVERGENCE_WARNINGS]
         limits = np.array([self.hard_limit, self.hard_impact_limit], dtype=np.float64)
         samples = np.array(self._samples, dtype=np.int64)
-        data = world.data
-        self._compiled_arguments = (
-            layout,
-            samples,
-            data.sensordata,
-            data.tree_asleep,
-            limits,
-            trap,
-        )
+        divergence = np.zeros(2, dtype=np.int64)
+        self._compiled_arguments = (layout, samples, limits, divergence, trap)
         self._compiled_for = data
         return self._compiled_arguments
 
