@@ -10,8 +10,10 @@ thread-local log handler of :mod:`liuxing_envs.sim.mujoco_errors` (what the Pyth
 bindings do around theirs), which copies an error's message and jumps back to the
 ``setjmp`` here; the kernel then returns :data:`FAILED` and its caller raises the message as
 ``mujoco.FatalError``, as the bindings do. Warnings pass on to the global handler, which
-prints them as the bindings' calls do. The jump buffer is one per process, so this kernel
-holds the GIL (no ``nogil``): no two threads are inside it at once.
+prints them as the bindings' calls do. The handler's buffers are one per process: the caller
+holds the handler's lock around the call (another thread meanwhile steps through the
+bindings), and the kernel does nothing where a MuJoCo hook is set (user code, Python's
+perhaps, would run inside it without the GIL).
 """
 
 from __future__ import annotations
@@ -32,10 +34,13 @@ from liuxing_envs.kernels import jit_options
 MJ_STEP, SET_HANDLER, HANDLER, JUMP_BUFFER, MODEL, DATA = range(6)
 SENSORDATA, TREE_ASLEEP, QPOS, QVEL, WARNING_NUMBERS, WARNING_STRIDE = range(6, 12)
 LEFT_TOUCH, RIGHT_TOUCH, TREE, NOSLIP_WHEN_TOUCHING, NQ, NV = range(12, 18)
+#: Where MuJoCo's hooks (function pointers users may set) are listed, and how many: pairs of
+#: int64, each hook's address and the value it holds when no user code is set.
+HOOKS, HOOK_COUNT = 18, 19
 #: ``layout[DIVERGENCE_WARNINGS:]``: the warnings that count a divergence (MuJoCo's bad
 #: qpos, qvel and qacc).
-DIVERGENCE_WARNINGS = 18
-LAYOUT_SIZE = 21
+DIVERGENCE_WARNINGS = 20
+LAYOUT_SIZE = 23
 #: Entries of the ``divergence`` argument (int64, written): the divergence warnings counted
 #: when the kernel started, and, when it returns DONE, its verdict on the step:
 COUNT_AT_START, VERDICT = range(2)
@@ -56,8 +61,11 @@ NOSLIP = 1
 AWAKE = 2
 #: the sample's peaks (updated) passed a hard limit: the protective stop is the caller's;
 STOPPED = 3
-#: a MuJoCo error in the sample's physics (its message is in the error handler's buffer).
+#: a MuJoCo error in the physics (its message is in the error handler's buffer; the sample
+#: returned is ``start``);
 FAILED = 4
+#: a MuJoCo hook is set (user code would run inside the kernel): nothing is done.
+HOOKED = 5
 
 _BYTE_POINTER = ir.IntType(8).as_pointer()
 
@@ -126,6 +134,26 @@ def _load_int(typingctx, address):
     return types.int32(types.int64), codegen
 
 
+@intrinsic
+def _load_address(typingctx, address):
+    """The int64 (a pointer) at ``address``."""
+
+    def codegen(context, builder, signature, args):
+        return builder.load(builder.inttoptr(args[0], ir.IntType(64).as_pointer()))
+
+    return types.int64(types.int64), codegen
+
+
+@njit(**jit_options())
+def _hooked(layout):
+    """Whether any of MuJoCo's hooks holds user code."""
+    for k in range(layout[HOOK_COUNT]):
+        entry = layout[HOOKS] + 16 * k
+        if _load_address(_load_address(entry)) != _load_address(entry + 8):
+            return True
+    return False
+
+
 @njit(**jit_options())
 def _divergences(layout):
     """How many times MuJoCo has counted a divergence warning (as ``divergence_count``)."""
@@ -151,7 +179,7 @@ def _verdict(layout, count_at_start):
     return UNDECIDED if undecided else STABLE
 
 
-@njit(**{**jit_options(), "nogil": False})
+@njit(**jit_options())
 def sleeping_samples(layout, samples, start, noslip, peaks, limits, divergence):
     """Run the force samples from ``start``: per sample, its ``samples[k]`` physics steps,
     then the pad forces into ``peaks`` (float64: left, right, impact; updated in place).
@@ -160,6 +188,8 @@ def sleeping_samples(layout, samples, start, noslip, peaks, limits, divergence):
     (``len(samples)`` when DONE). ``noslip``: the model's current noslip iterations.
     ``divergence`` (int64): see COUNT_AT_START (written when ``start`` is 0) and VERDICT.
     """
+    if _hooked(layout):
+        return HOOKED, start
     model, data = layout[MODEL], layout[DATA]
     left_touch = layout[SENSORDATA] + 8 * layout[LEFT_TOUCH]
     right_touch = layout[SENSORDATA] + 8 * layout[RIGHT_TOUCH]

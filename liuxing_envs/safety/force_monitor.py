@@ -42,6 +42,11 @@ class ForceMonitor:
     a pad force over ``hard_limit`` or an impact over ``hard_impact_limit`` stops the arm and
     the fingers where they are and ends the step there."""
 
+    #: The compiled loop's arguments, for the world whose data they were made for
+    #: (addresses of this process: never pickled).
+    _compiled_for: mujoco.MjData | None = None
+    _compiled_arguments: tuple | None = None
+
     def __init__(self, settings: Safety, substeps: int) -> None:
         self.hard_limit, self.hard_impact_limit = settings.hard_limit, settings.hard_impact_limit
         #: The physics steps of each force sample: FORCE_SAMPLE_SUBSTEPS, the last the rest.
@@ -49,10 +54,6 @@ class ForceMonitor:
             min(FORCE_SAMPLE_SUBSTEPS, substeps - start)
             for start in range(0, substeps, FORCE_SAMPLE_SUBSTEPS)
         )
-        #: The compiled loop's arguments, for the world whose data they were made for
-        #: (addresses of this process: never pickled).
-        self._compiled_for: mujoco.MjData | None = None
-        self._compiled_arguments: tuple | None = None
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
@@ -66,14 +67,20 @@ class ForceMonitor:
 
     def run(self, world: GraspWorld) -> ForcePeaks:
         arguments = self._compiled_loop(world) if world.compiled else None
-        if arguments is None:
+        compiled = arguments is not None and arguments[-1].lock.acquire(blocking=False)
+        if compiled:
+            try:
+                compiled = self._run_compiled(world, arguments)
+            finally:
+                arguments[-1].lock.release()
+        if compiled:
+            peaks, first, stopped, divergences, diverged = compiled
+            if not stopped and first < len(self._samples):
+                peaks, stopped = self._run_python(world, peaks, first, True)
+        else:  # no kernel, its buffers in another thread's use, or a MuJoCo hook set
             divergences = divergence_count(world.data)
             peaks, stopped = self._run_python(world, (0.0, 0.0, 0.0), 0, False)
             diverged = None
-        else:
-            peaks, first, stopped, divergences, diverged = self._run_compiled(world, arguments)
-            if not stopped and first < len(self._samples):
-                peaks, stopped = self._run_python(world, peaks, first, True)
         if stopped:
             peaks = self._stop(world, peaks)
         if diverged is None:
@@ -123,10 +130,13 @@ class ForceMonitor:
         """The samples the compiled loop takes, while the instrument sleeps: ``(peaks, the
         sample whose physics it ran last, stopped, the divergence count before the step,
         whether the step diverged)``, the last None where the Python loop goes on from that
-        sample or the kernel cannot decide (then the caller checks)."""
+        sample or the kernel cannot decide (then the caller checks); None where a MuJoCo
+        hook is set and the kernel did nothing."""
         from liuxing_envs.kernels import force_loop as kernel
 
         layout, samples, limits, divergence, trap = arguments
+        limits[kernel.HARD_LIMIT] = self.hard_limit
+        limits[kernel.HARD_IMPACT_LIMIT] = self.hard_impact_limit
         options = world.model.opt
         peaks = np.zeros(3)
         first = 0
@@ -140,6 +150,8 @@ class ForceMonitor:
             options.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
         if status == kernel.FAILED:
             raise trap.error()
+        if status == kernel.HOOKED:
+            return None
         count, verdict = divergence.tolist()
         diverged = None
         if status == kernel.DONE and verdict != kernel.UNDECIDED:
@@ -147,8 +159,9 @@ class ForceMonitor:
         return tuple(peaks.tolist()), first, status == kernel.STOPPED, count, diverged
 
     def _compiled_loop(self, world: GraspWorld):
-        """The compiled loop's arguments for ``world`` (made once per world), or None where
-        a kernel cannot call MuJoCo safely here (:mod:`liuxing_envs.sim.mujoco_errors`)."""
+        """The compiled loop's arguments for ``world`` (made again when the env's world
+        changes), or None where a kernel cannot call MuJoCo safely here
+        (:mod:`liuxing_envs.sim.mujoco_errors`)."""
         if self._compiled_for is world.data:
             return self._compiled_arguments
         from liuxing_envs.kernels import force_loop as kernel
@@ -179,6 +192,7 @@ class ForceMonitor:
         layout[kernel.TREE] = world.instrument_tree
         layout[kernel.NOSLIP_WHEN_TOUCHING] = GRASP_NOSLIP_ITERATIONS
         layout[kernel.NQ], layout[kernel.NV] = world.model.nq, world.model.nv
+        layout[kernel.HOOKS], layout[kernel.HOOK_COUNT] = trap.hooks.ctypes.data, len(trap.hooks)
         layout[kernel.DIVERGENCE_WARNINGS :] = [int(warning) for warning in DIVERGENCE_WARNINGS]
         limits = np.array([self.hard_limit, self.hard_impact_limit], dtype=np.float64)
         samples = np.array(self._samples, dtype=np.int64)

@@ -4,29 +4,41 @@ A MuJoCo error (``mju_error``: a full stack, say) goes to the log handler, and M
 default handler ends the process. The Python bindings install, around each of their calls, a
 thread-local handler that jumps back out of the call, and raise the message as
 ``mujoco.FatalError``. A kernel does the same with :func:`error_trap`'s handler: installed
-with ``set_handler`` around its calls, it copies an error's message into ``message`` and
-``longjmp``\\ s to the ``setjmp`` the kernel made on ``jump_buffer``; other messages
-(warnings) go on to the global handler, as from the bindings' calls.
+with ``set_handler`` around its calls, it copies an error's subject and function into
+``message`` and ``function`` and ``longjmp``\\ s to the ``setjmp`` the kernel made on
+``jump_buffer``; other messages (warnings) go on to the global handler, as from the
+bindings' calls.
 
-The handler is a few LLVM instructions built in each process (about 20 ms), not a cached
-kernel: it holds this process's buffer addresses. Where the pieces are missing (no C
-library ``_setjmp``, a MuJoCo without the thread-local handler setter), :func:`error_trap`
-is None and callers keep the bindings' calls.
+The buffers are one per process: :attr:`ErrorTrap.lock` gives them to one thread's kernel at
+a time. A kernel does not run where a MuJoCo hook (:data:`HOOKS`) is set, since user code
+would then run inside it. The handler is a few LLVM instructions built in each process (a
+few milliseconds), not a cached kernel: it holds this process's buffer addresses. Where the
+pieces are missing (no C library ``_setjmp``, a MuJoCo without the thread-local handler
+setter), :func:`error_trap` is None and callers keep the bindings' calls.
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
+import threading
 from pathlib import Path
 from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
-#: ``mjtLogLevel``'s error level, and where ``mjLogMessage`` holds its subject (after two
-#: ints) and how long that is.
-_LOG_ERROR, _SUBJECT_OFFSET, _SUBJECT_SIZE = 3, 8, 1024
+#: ``mjtLogLevel``'s error level; where ``mjLogMessage`` holds its subject (after two ints),
+#: how long that is, and where its ``func`` pointer follows the subject and ``body``.
+_LOG_ERROR, _SUBJECT_OFFSET, _SUBJECT_SIZE, _FUNCTION_OFFSET = 3, 8, 1024, 1040
+#: MuJoCo's hooks that a user (the Python bindings' ``set_mjcb_*`` and ``set_mju_user_*``)
+#: can point at code of their own, which a kernel must not run: Python needs the GIL and
+#: its exceptions need the bindings' handling.
+HOOKS = (
+    "mjcb_passive", "mjcb_control", "mjcb_contactfilter", "mjcb_sensor", "mjcb_time",
+    "mjcb_act_dyn", "mjcb_act_gain", "mjcb_act_bias", "mju_user_warning", "mju_user_malloc",
+    "mju_user_free",
+)  # fmt: skip
 #: Bytes kept for a jump buffer (glibc's ``jmp_buf`` is 200 on x86-64, 312 on aarch64).
 _JUMP_BUFFER_BYTES = 1024
 _HANDLER_NAME = "liuxing_mujoco_error_trap"
@@ -41,14 +53,25 @@ class ErrorTrap(NamedTuple):
     handler: int
     #: The ``setjmp`` buffer (its address is in the handler).
     jump_buffer: np.ndarray
-    #: An error's message, NUL-terminated.
+    #: An error's subject, NUL-terminated.
     message: np.ndarray
+    #: An error's ``func`` (the address of a static string, or 0).
+    function: np.ndarray
+    #: Per MuJoCo hook (:data:`HOOKS`): its address, and the value it holds when no user
+    #: code is set (NULL, or the bindings' own C function: MuJoCo's timer, say).
+    hooks: np.ndarray
+    #: Held by the thread whose kernel uses the buffers (one at a time: the others call
+    #: MuJoCo through the bindings meanwhile).
+    lock: threading.Lock
     #: The compiled handler's owner (kept alive with the trap).
     engine: object
 
     def error(self) -> mujoco.FatalError:
-        """The trapped error, as the bindings raise it."""
+        """The trapped error, with the text the bindings give it."""
         text = self.message.tobytes().split(b"\0", 1)[0].decode("utf-8", "replace")
+        function = int(self.function[0])
+        if function:
+            text = f"{ctypes.string_at(function).decode('utf-8', 'replace')}: {text}"
         return mujoco.FatalError(text)
 
 
@@ -85,15 +108,45 @@ def error_trap() -> ErrorTrap | None:
         return None
     if not all(hasattr(process, name) for name in ("_setjmp", "longjmp", "memcpy")):
         return None
+    hooks = [mujoco_library_variable(name) for name in HOOKS]
+    if None in hooks:
+        return None
+    # A hook whose bindings' getter answers None holds no user code: its value then is the
+    # one to expect. One that holds user code now counts as set until the process ends.
+    unset = [
+        ctypes.c_void_p.from_address(address).value or 0
+        if getattr(mujoco, f"get_{name}", lambda: None)() is None
+        else 0
+        for name, address in zip(HOOKS, hooks, strict=True)
+    ]
     jump_buffer = np.zeros(_JUMP_BUFFER_BYTES, dtype=np.uint8)
     message = np.zeros(_SUBJECT_SIZE, dtype=np.uint8)
-    engine, handler = _compile_handler(jump_buffer.ctypes.data, message.ctypes.data, global_handler)
-    return ErrorTrap(set_handler, handler, jump_buffer, message, engine)
+    function = np.zeros(1, dtype=np.uint64)
+    engine, handler = _compile_handler(
+        jump_buffer.ctypes.data, message.ctypes.data, function.ctypes.data, global_handler
+    )
+    return ErrorTrap(
+        set_handler, handler, jump_buffer, message, function,
+        np.array([hooks, unset], dtype=np.int64).T.copy(),
+        threading.Lock(), engine,
+    )  # fmt: skip
 
 
-def _compile_handler(jump_address: int, message_address: int, global_handler: int):
-    """``void handler(const mjLogMessage*)``: an error's subject into ``message_address`` and
-    ``longjmp(jump_address, 1)``; anything else to the global handler."""
+def mujoco_library_variable(name: str) -> int | None:
+    """The address of MuJoCo's global variable ``name`` (None where it is not found)."""
+    library = mujoco_library()
+    try:
+        return ctypes.addressof(ctypes.c_void_p.in_dll(library, name))
+    except (ValueError, TypeError):
+        return None
+
+
+def _compile_handler(
+    jump_address: int, message_address: int, function_address_: int, global_handler: int
+):
+    """``void handler(const mjLogMessage*)``: an error's subject into ``message_address``, its
+    ``func`` into ``function_address_``, and ``longjmp(jump_address, 1)``; anything else to
+    the global handler."""
     import llvmlite.binding as llvm
     from llvmlite import ir
 
@@ -118,6 +171,11 @@ def _compile_handler(jump_address: int, message_address: int, global_handler: in
     subject = builder.gep(message, [ir.Constant(int64, _SUBJECT_OFFSET)])
     target = builder.inttoptr(ir.Constant(int64, message_address), pointer)
     builder.call(copy, [target, subject, ir.Constant(int64, _SUBJECT_SIZE - 1)])
+    function_slot = builder.gep(message, [ir.Constant(int64, _FUNCTION_OFFSET)])
+    function = builder.load(builder.bitcast(function_slot, int64.as_pointer()))
+    builder.store(
+        function, builder.inttoptr(ir.Constant(int64, function_address_), int64.as_pointer())
+    )
     builder.call(long_jump, [builder.inttoptr(ir.Constant(int64, jump_address), pointer),
                              ir.Constant(int32, 1)])  # fmt: skip
     builder.unreachable()
