@@ -67,16 +67,16 @@ class ForceMonitor:
 
     def run(self, world: GraspWorld) -> ForcePeaks:
         arguments = self._compiled_loop(world) if world.compiled else None
-        compiled = arguments is not None and arguments[-1].lock.acquire(blocking=False)
-        if compiled:
+        compiled = None
+        if arguments is not None and arguments[-1].lock.acquire(blocking=False):
             try:
                 compiled = self._run_compiled(world, arguments)
             finally:
                 arguments[-1].lock.release()
-        if compiled:
-            peaks, first, stopped, divergences, diverged = compiled
+        if compiled is not None:
+            peaks, first, stepped, stopped, divergences, diverged = compiled
             if not stopped and first < len(self._samples):
-                peaks, stopped = self._run_python(world, peaks, first, True)
+                peaks, stopped = self._run_python(world, peaks, first, stepped)
         else:  # no kernel, its buffers in another thread's use, or a MuJoCo hook set
             divergences = divergence_count(world.data)
             peaks, stopped = self._run_python(world, (0.0, 0.0, 0.0), 0, False)
@@ -128,10 +128,10 @@ class ForceMonitor:
 
     def _run_compiled(self, world: GraspWorld, arguments: tuple):
         """The samples the compiled loop takes, while the instrument sleeps: ``(peaks, the
-        sample whose physics it ran last, stopped, the divergence count before the step,
-        whether the step diverged)``, the last None where the Python loop goes on from that
-        sample or the kernel cannot decide (then the caller checks); None where a MuJoCo
-        hook is set and the kernel did nothing."""
+        sample the Python loop goes on from, whether that sample's physics has run, stopped,
+        the divergence count before the step, whether the step diverged)``, the last None
+        where the Python loop goes on or the kernel cannot decide (then the caller checks);
+        None where a MuJoCo hook holds user code and the kernel did nothing."""
         from liuxing_envs.kernels import force_loop as kernel
 
         layout, samples, limits, divergence, trap = arguments
@@ -150,13 +150,16 @@ class ForceMonitor:
             options.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
         if status == kernel.FAILED:
             raise trap.error()
-        if status == kernel.HOOKED:
+        if status == kernel.HOOKED and first == 0:
             return None
+        # (A hook set by another thread between two calls of this step leaves the rest of
+        # the step, from that sample, to the Python loop.)
         count, verdict = divergence.tolist()
         diverged = None
         if status == kernel.DONE and verdict != kernel.UNDECIDED:
             diverged = verdict == kernel.DIVERGED
-        return tuple(peaks.tolist()), first, status == kernel.STOPPED, count, diverged
+        stepped, stopped = status == kernel.AWAKE, status == kernel.STOPPED
+        return tuple(peaks.tolist()), first, stepped, stopped, count, diverged
 
     def _compiled_loop(self, world: GraspWorld):
         """The compiled loop's arguments for ``world`` (made again when the env's world
