@@ -12,8 +12,9 @@ bindings do around theirs), which copies an error's message and jumps back to th
 ``mujoco.FatalError``, as the bindings do. Warnings pass on to the global handler, which
 prints them as the bindings' calls do. The handler's buffers are one per process: the caller
 holds the handler's lock around the call (another thread meanwhile steps through the
-bindings), and the kernel does nothing where a MuJoCo hook is set (user code, Python's
-perhaps, would run inside it without the GIL).
+bindings), and the kernel does nothing where a MuJoCo hook holds user code, which would
+run inside it (a Python callback could run the kernel again, or raise where only the
+bindings know how to pass the exception on).
 """
 
 from __future__ import annotations

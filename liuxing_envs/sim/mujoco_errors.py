@@ -32,8 +32,8 @@ import numpy as np
 #: how long that is, and where its ``func`` pointer follows the subject and ``body``.
 _LOG_ERROR, _SUBJECT_OFFSET, _SUBJECT_SIZE, _FUNCTION_OFFSET = 3, 8, 1024, 1040
 #: MuJoCo's hooks that a user (the Python bindings' ``set_mjcb_*`` and ``set_mju_user_*``)
-#: can point at code of their own, which a kernel must not run: Python needs the GIL and
-#: its exceptions need the bindings' handling.
+#: can point at code of their own, which a kernel must not run: a Python callback could run
+#: the kernel again, and its exceptions need the bindings' handling.
 HOOKS = (
     "mjcb_passive", "mjcb_control", "mjcb_contactfilter", "mjcb_sensor", "mjcb_time",
     "mjcb_act_dyn", "mjcb_act_gain", "mjcb_act_bias", "mju_user_warning", "mju_user_malloc",
