@@ -19,6 +19,23 @@ if TYPE_CHECKING:
 FORCE_SAMPLE_SUBSTEPS = 5
 
 
+def noslip_wanted(left: float, right: float) -> int:
+    """The noslip iterations for the next physics steps, given the pad forces now: noslip
+    stops a held instrument creeping in the pads, and costs a third of a physics step, so it
+    runs only while a pad touches something."""
+    return GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
+
+
+class _CompiledLoop(NamedTuple):
+    """The compiled loop's arguments for one world's data (addresses of this process)."""
+
+    layout: np.ndarray
+    samples: np.ndarray
+    limits: np.ndarray
+    divergence: np.ndarray
+    trap: object  # liuxing_envs.sim.mujoco_errors.ErrorTrap
+
+
 class ForcePeaks(NamedTuple):
     """A control step's peaks (N) over its force samples, and how it ended (a named tuple:
     made every step, it costs a third of a frozen dataclass)."""
@@ -42,10 +59,9 @@ class ForceMonitor:
     a pad force over ``hard_limit`` or an impact over ``hard_impact_limit`` stops the arm and
     the fingers where they are and ends the step there."""
 
-    #: The compiled loop's arguments, for the world whose data they were made for
-    #: (addresses of this process: never pickled).
-    _compiled_for: mujoco.MjData | None = None
-    _compiled_arguments: tuple | None = None
+    #: The compiled loop's arguments per world, by ``id`` of its data: (data, arguments),
+    #: the data kept so that its id stays its own (addresses of this process: never pickled).
+    _compiled: dict | None = None
 
     def __init__(self, settings: Safety, substeps: int) -> None:
         self.hard_limit, self.hard_impact_limit = settings.hard_limit, settings.hard_impact_limit
@@ -57,7 +73,7 @@ class ForceMonitor:
 
     def __getstate__(self) -> dict:
         state = dict(self.__dict__)
-        state["_compiled_for"] = state["_compiled_arguments"] = None
+        state["_compiled"] = None
         return state
 
     @property
@@ -68,11 +84,11 @@ class ForceMonitor:
     def run(self, world: GraspWorld) -> ForcePeaks:
         arguments = self._compiled_loop(world) if world.compiled else None
         compiled = None
-        if arguments is not None and arguments[-1].lock.acquire(blocking=False):
+        if arguments is not None and arguments.trap.lock.acquire(blocking=False):
             try:
                 compiled = self._run_compiled(world, arguments)
             finally:
-                arguments[-1].lock.release()
+                arguments.trap.lock.release()
         if compiled is not None:
             peaks, first, stepped, stopped, divergences, diverged = compiled
             if not stopped and first < len(self._samples):
@@ -107,9 +123,7 @@ class ForceMonitor:
         noslip = options.noslip_iterations
         for sample in range(first, len(self._samples)):
             if sample > first or not stepped:
-                # Noslip iterations stop a held instrument creeping in the pads; they cost a
-                # third of a physics step, so they run only while a pad touches something.
-                wanted = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
+                wanted = noslip_wanted(left, right)
                 if wanted != noslip:
                     options.noslip_iterations = noslip = wanted
                 step(model, data, self._samples[sample])
@@ -126,7 +140,7 @@ class ForceMonitor:
                 return (peak_left, peak_right, impact_peak), True
         return (peak_left, peak_right, impact_peak), False
 
-    def _run_compiled(self, world: GraspWorld, arguments: tuple):
+    def _run_compiled(self, world: GraspWorld, arguments: _CompiledLoop):
         """The samples the compiled loop takes, while the instrument sleeps: ``(peaks, the
         sample the Python loop goes on from, whether that sample's physics has run, stopped,
         the divergence count before the step, whether the step diverged)``, the last None
@@ -146,8 +160,7 @@ class ForceMonitor:
             )
             if status != kernel.NOSLIP:
                 break
-            left, right = world.gripper.fingertip_force_values()
-            options.noslip_iterations = GRASP_NOSLIP_ITERATIONS if max(left, right) > 0.0 else 0
+            options.noslip_iterations = noslip_wanted(*world.gripper.fingertip_force_values())
         if status == kernel.FAILED:
             raise trap.error()
         if status == kernel.HOOKED and first == 0:
@@ -161,19 +174,22 @@ class ForceMonitor:
         stepped, stopped = status == kernel.AWAKE, status == kernel.STOPPED
         return tuple(peaks.tolist()), first, stepped, stopped, count, diverged
 
-    def _compiled_loop(self, world: GraspWorld):
-        """The compiled loop's arguments for ``world`` (made again when the env's world
-        changes), or None where a kernel cannot call MuJoCo safely here
-        (:mod:`liuxing_envs.sim.mujoco_errors`)."""
-        if self._compiled_for is world.data:
-            return self._compiled_arguments
+    def _compiled_loop(self, world: GraspWorld) -> _CompiledLoop | None:
+        """The compiled loop's arguments for ``world`` (made once per world), or None where
+        a kernel cannot call MuJoCo safely here (:mod:`liuxing_envs.sim.mujoco_errors`)."""
+        if self._compiled is None:
+            self._compiled = {}
+        made = self._compiled.get(id(world.data))
+        if made is not None:
+            return made[1]
         from liuxing_envs.kernels import force_loop as kernel
         from liuxing_envs.sim.mujoco_errors import error_trap, function_address
 
+        data = world.data
         trap, mj_step = error_trap(), function_address("mj_step")
         if trap is None or mj_step is None:
+            self._compiled[id(data)] = (data, None)  # not asked again
             return None
-        data = world.data
         layout = np.empty(kernel.LAYOUT_SIZE, dtype=np.int64)
         layout[kernel.MJ_STEP], layout[kernel.SET_HANDLER] = mj_step, trap.set_handler
         layout[kernel.HANDLER] = trap.handler
@@ -200,9 +216,9 @@ class ForceMonitor:
         limits = np.array([self.hard_limit, self.hard_impact_limit], dtype=np.float64)
         samples = np.array(self._samples, dtype=np.int64)
         divergence = np.zeros(2, dtype=np.int64)
-        self._compiled_arguments = (layout, samples, limits, divergence, trap)
-        self._compiled_for = data
-        return self._compiled_arguments
+        arguments = _CompiledLoop(layout, samples, limits, divergence, trap)
+        self._compiled[id(data)] = (data, arguments)
+        return arguments
 
     def _stop(self, world: GraspWorld, peaks: tuple) -> tuple:
         """Protective stop: hold the arm and the fingers where they are and step one force
