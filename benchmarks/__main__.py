@@ -284,9 +284,10 @@ def run(
             results["training"]["throughput"].append({"env_id": env_id, "algo": algo, **measured})
             on_progress(results)
         _progress("training: PPO before the kernels and now, side by side (default train.py)")
-        results["training"]["side_by_side"] = training.side_by_side(
-            512 if quick else training.default_ppo_steps(), 1
+        steps, rounds = (
+            (512, 1) if quick else (training.default_ppo_steps(), training.SIDE_BY_SIDE_ROUNDS)
         )
+        results["training"]["side_by_side"] = training.side_by_side(steps, rounds)
         on_progress(results)
         _progress("training: time to beat the four-view baseline (default train.py)")
         results["training"]["time_to_beat"] = training.time_to_beat_four_view(
@@ -584,9 +585,9 @@ def report(results: dict, command: str) -> str:
         lines += [
             "## The physics limit",
             "",
-            "Every `mj_step` of seeded random episodes, replayed open loop by"
-            " `mujoco.rollout` (all substeps in C). The limit is env steps/s of that replay;"
-            " the env's own steps/s are timed on the same episodes in the same process, in"
+            "Every `mj_step` of seeded random episodes, resets included, replayed open loop"
+            " by `mujoco.rollout` (all substeps in C). The limit is env steps/s of that"
+            " replay; the env's own steps/s are timed on the same episodes in the same process, in"
             " rounds alternating with the replay's; env / limit is the median of the rounds'"
             " ratios.",
             "",
@@ -717,16 +718,18 @@ def report(results: dict, command: str) -> str:
             lines += [
                 f"Side by side (`benchmarks/training.py`): the default `python train.py` of "
                 f"commit {paired['before_commit'][:12]}, before the compiled kernels, and of "
-                f"this code, {paired['steps']} steps each in alternating runs.",
+                f"this code, {paired['steps']} steps each, in rounds of one run each; the"
+                " speed-up is the median of the rounds' ratios (min and max beside it).",
                 "",
             ]
+            rounds = paired.get("round_speedups") or [paired["speedup"]]
             lines += _table(
-                ("code", "env steps/s per run", "speed-up of the medians"),
+                ("code", "env steps/s per run", "speed-up", "min", "max"),
                 [
                     ("before the kernels",
-                     ", ".join(f"{r:.0f}" for r in paired["before_steps_per_second"]), ""),
+                     ", ".join(f"{r:.0f}" for r in paired["before_steps_per_second"]), "", "", ""),
                     ("now", ", ".join(f"{r:.0f}" for r in paired["now_steps_per_second"]),
-                     f"{paired['speedup']:.2f}x"),
+                     f"{paired['speedup']:.2f}x", f"{min(rounds):.2f}x", f"{max(rounds):.2f}x"),
                 ],
             )  # fmt: skip
         elif "skipped" in paired:

@@ -4,7 +4,10 @@ Each configuration runs in a fresh process. The env runs seeded random episodes 
 ``mj_step`` it makes is recorded (its model, the controls, the step count) from the state
 each episode starts in; :func:`mujoco.rollout.rollout` then replays those controls open
 loop, all substeps in C with no Python in between. The limit is env steps per second of that
-replay: what the env could reach if everything but physics were free. The env's own rate is
+replay: what the env could reach if everything but physics were free. The env's rate counts
+its resets, so the replay counts theirs too: a reset's own physics (InstrumentGrasp's settling
+steps) is replayed as a segment of its own, as it starts from bodies the reset has just
+placed. The env's own rate is
 timed in the same process, replaying the same seeds and actions with nothing recorded, its
 rounds alternating with the replay's, and each round's ratio taken, so a machine whose speed
 drifts slows both alike.
@@ -77,17 +80,17 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
 
     def run_env(recorder: _Recorder | None = None) -> float:
         """Env steps/s of seeded episodes: reset(seed=0), then unseeded resets as they end;
-        ``recorder`` records each episode's steps, not its resets."""
+        ``recorder`` records the physics of each reset and of each episode's steps, each
+        its own segment (a reset moves bodies between its physics and the steps')."""
         start = time.perf_counter()
         done = True
         for step, action in enumerate(actions):
             if done:
                 if recorder is not None:
-                    recorder.recording = False
+                    recorder.new_episode()
                 env.reset(seed=0 if step == 0 else None)
                 if recorder is not None:
                     recorder.new_episode()
-                    recorder.recording = True
             _, _, terminated, truncated, _ = env.step(action)
             done = terminated or truncated
         return steps / (time.perf_counter() - start)
@@ -99,6 +102,7 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
     for world in worlds:
         world.compiled = False
     recorder = _Recorder()
+    recorder.recording = True
     run_env(recorder)
     recorder.close()
     for world, was_compiled in zip(worlds, compiled, strict=True):

@@ -118,6 +118,7 @@ def test_ppo_side_by_side_trains_the_code_before_the_kernels_and_this_code():
     (before,), (now,) = paired["before_steps_per_second"], paired["now_steps_per_second"]
     assert before > 0 and now > 0
     assert paired["speedup"] == pytest.approx(now / before)
+    assert paired["round_speedups"] == [pytest.approx(now / before)]
     assert paired["before_commit"] == training.BEFORE_KERNELS
 
 

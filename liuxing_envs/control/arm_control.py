@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.sim.arm_ik import IK_LIMIT_SLACK
 from liuxing_envs.sim.grasp_world import tool_down
 from liuxing_envs.sim.gripper import TCP_SITE
@@ -85,9 +86,7 @@ class EndEffectorDeltaController:
         # the arm where it is and pushing against the tray cannot wind its servos up.
         reference = world.arm_ctrl()
         if world.compiled:
-            from liuxing_envs import kernels
-            from liuxing_envs.kernels import one_pose_ik
-
+            one_pose_ik = kernels.module("one_pose_ik")
             dgemm = kernels.numpy_dgemm()
             data, arm = world.data, world.arm
             move = (arm_action, self.max_translation, self.max_yaw, scale)

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import importlib
 import importlib.util
 import os
 import tempfile
 import warnings
 from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 
@@ -33,6 +35,15 @@ import numpy as np
 #: inf or nan as in numpy (the references rely on it) instead of raising. No ``fastmath``:
 #: results must equal their references bit for bit.
 KERNEL_OPTIONS = {"nogil": True, "error_model": "numpy"}
+
+
+@functools.cache
+def module(name: str) -> ModuleType:
+    """The kernel module ``name`` of this package (``module("fusion")``), imported at its
+    first use. Callers in a step's path look their kernels up here: an import statement in
+    a function runs the import machinery every time (a microsecond or two), this a cached
+    call."""
+    return importlib.import_module(f"{__name__}.{name}")
 
 
 @functools.cache

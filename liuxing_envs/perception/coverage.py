@@ -326,9 +326,7 @@ class CoverageTracker:
         self._cell_samples = ids[rows].astype(narrow)
 
     def _cover_compiled(self, points: np.ndarray, done: np.ndarray, clear: np.ndarray) -> int:
-        from liuxing_envs.kernels.coverage import cover
-
-        return cover(
+        return kernels.module("coverage").cover(
             np.ascontiguousarray(points, dtype=np.float64),
             self._origin,
             self._inv_cell,

@@ -83,7 +83,7 @@ class FreeSpaceGrid:
         delta = (points - self._lower) / self._cell - start
         length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         if self.compiled:
-            from liuxing_envs.kernels.fusion import carve
+            carve = kernels.module("fusion").carve
 
             carve(start, delta, length, resolution, float(_SAMPLES_PER_CELL), self._seen)
             return

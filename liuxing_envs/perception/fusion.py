@@ -315,7 +315,7 @@ class VoxelMap:
 
     def _fuse_compiled(self, points: np.ndarray) -> int:
         """:meth:`fuse` of C-ordered ``(N, 3)`` float64 points by the compiled kernel."""
-        from liuxing_envs.kernels.fusion import fuse
+        fuse = kernels.module("fusion").fuse
 
         m = self._size
         if m + len(points) > self._slot_keys.size:
@@ -424,7 +424,7 @@ class VoxelMap:
         scale = self.voxel_size * resolution / size
         offset = (self.lower - (center - 0.5 * size)) * (resolution / size) + 0.5 * scale
         if self.compiled:
-            from liuxing_envs.kernels.fusion import mark_cells
+            mark_cells = kernels.module("fusion").mark_cells
 
             mark_cells(grid, keys, self.dims[1], self.dims[2], scale, offset, resolution)
             return

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, NamedTuple
 import mujoco
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.sim.gripper import GRASP_NOSLIP_ITERATIONS
 from liuxing_envs.sim.stability import DIVERGENCE_WARNINGS, diverged_since, divergence_count
 
@@ -146,7 +147,7 @@ class ForceMonitor:
         the divergence count before the step, whether the step diverged)``, the last None
         where the Python loop goes on or the kernel cannot decide (then the caller checks);
         None where a MuJoCo hook holds user code and the kernel did nothing."""
-        from liuxing_envs.kernels import force_loop as kernel
+        kernel = kernels.module("force_loop")
 
         layout, samples, limits, divergence, trap = arguments
         limits[kernel.HARD_LIMIT] = self.hard_limit

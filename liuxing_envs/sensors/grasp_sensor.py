@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from gymnasium import spaces
 
+from liuxing_envs import kernels
 from liuxing_envs.sim.camera import CameraIntrinsics
 from liuxing_envs.sim.grasp_world import jaws_across
 
@@ -79,7 +80,7 @@ class GraspSensor:
 
     def _observe_compiled(self, world: GraspWorld, commanded_opening: float) -> dict:
         """The entries that are no image, by the kernel (one call)."""
-        from liuxing_envs.kernels.grasp_observation import grasp_observation
+        grasp_observation = kernels.module("grasp_observation").grasp_observation
 
         data = world.data
         proprio, forces, instrument = grasp_observation(

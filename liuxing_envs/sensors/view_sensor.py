@@ -100,9 +100,7 @@ class ViewSensor:
 
     def _crop(self, points: np.ndarray) -> np.ndarray:
         if self._compiled:
-            from liuxing_envs.kernels.fusion import crop
-
-            return crop(points, *self.crop)
+            return kernels.module("fusion").crop(points, *self.crop)
         return crop_points(points, *self.crop)
 
     def world_points(self, scene: ViewScene, depth: np.ndarray) -> np.ndarray:
@@ -126,7 +124,8 @@ class ViewSensor:
     def _world_points_compiled(self, camera, data, depth, on_arm) -> np.ndarray:
         """:meth:`world_points` by the kernels: the pixels on the arm are skipped rather than
         zeroed; the rotation stays numpy's BLAS product, as in ``transform_points``."""
-        from liuxing_envs.kernels.fusion import back_project, translate
+        fusion = kernels.module("fusion")
+        back_project, translate = fusion.back_project, fusion.translate
 
         depth = np.asarray(depth)
         if depth.shape != (camera.intrinsics.height, camera.intrinsics.width):
@@ -184,7 +183,7 @@ class ViewSensor:
     def _depth_bytes(self) -> np.ndarray:
         """The uint8 depth observation ``(H, W)``: 255 at ``depth_obs_range`` and beyond."""
         if self._compiled and self.depth.dtype == np.float32:
-            from liuxing_envs.kernels.fusion import depth_bytes
+            depth_bytes = kernels.module("fusion").depth_bytes
 
             out = np.empty(self.depth.shape, dtype=np.uint8)
             if depth_bytes(self.depth.ravel(), np.float32(self.depth_obs_range), out.ravel()):

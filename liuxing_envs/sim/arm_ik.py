@@ -361,7 +361,7 @@ class ArmIK(ArmPart):
     def _nearest_compiled(self, flange_poses: np.ndarray, reference: np.ndarray) -> np.ndarray:
         """:meth:`nearest_first` of the valid ``ur_ik(flange_poses)``, by the compiled kernel:
         the same rows, bit for bit."""
-        from liuxing_envs.kernels.ik import nearest_solutions
+        nearest_solutions = kernels.module("ik").nearest_solutions
 
         lower, upper = self._arm.lower, self._arm.upper
         return nearest_solutions(
@@ -379,7 +379,7 @@ class ArmIK(ArmPart):
         (:mod:`liuxing_envs.kernels.one_pose_ik`, the same values bit for bit)."""
         flange_in_base = self._base_inverse @ site_pose @ flange_in_site
         if self.compiled:
-            from liuxing_envs.kernels import one_pose_ik
+            one_pose_ik = kernels.module("one_pose_ik")
 
             arm = self._arm
             return one_pose_ik.one_pose_nearest(

@@ -636,7 +636,7 @@ class DepthCamera:
         if not ids.size:
             return on_geoms
         if compiled and depth.dtype == np.float32:
-            from liuxing_envs.kernels.geom_pixels import pixels_on_geoms
+            pixels_on_geoms = kernels.module("geom_pixels").pixels_on_geoms
 
             grid, intrinsics = self._pixel_grid, self.intrinsics
             decided = pixels_on_geoms(

@@ -115,7 +115,7 @@ class ViewFrustum:
         that a ray reaches."""
         ids = np.asarray(geom_ids, dtype=np.intp)
         if self.compiled:
-            from liuxing_envs.kernels.frustum import may_reach
+            may_reach = kernels.module("frustum").may_reach
 
             reached = np.empty(ids.size, dtype=bool)
             may_reach(

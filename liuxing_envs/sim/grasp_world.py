@@ -8,6 +8,7 @@ import math
 import mujoco
 import numpy as np
 
+from liuxing_envs import kernels
 from liuxing_envs.forking import check_opengl_not_forked
 from liuxing_envs.opengl import new_renderer
 from liuxing_envs.sim.arm import Arm
@@ -368,7 +369,7 @@ class GraspWorld:
         # others lie farther than any gap this could return. While the gripper is away from
         # the instrument that skips every mj_geomDistance call, a step's dearest bookkeeping.
         if self.compiled:
-            from liuxing_envs.kernels.pad_bounds import pairs_within
+            pairs_within = kernels.module("pad_bounds").pairs_within
 
             measured, count = pairs_within(
                 data.geom_xpos, self._pads_then_geoms, self._bound_radii, distance
