@@ -323,6 +323,12 @@ def _ceiling(row: dict, single: dict, machine_: dict) -> float | None:
     return (single.get("ceilings") or {}).get(str(row["workers"]))
 
 
+def _round_range(paired: dict) -> str:
+    """`` (rounds 1.92x-3.66x)``: the side-by-side rounds' speed-ups, where there are several."""
+    rounds = paired.get("round_speedups") or []
+    return f" (rounds {min(rounds):.2f}x-{max(rounds):.2f}x)" if len(rounds) > 1 else ""
+
+
 def _speedup(row: dict, single: dict) -> float:
     """A scaling row's speed-up over one env: the median of its rounds' ratios, or (reports
     before rounds) the ratio of medians."""
@@ -431,7 +437,7 @@ def targets(results: dict) -> list[tuple]:
             (
                 "PPO training on ViewPlanning-v1, default train.py: env steps/s / the code "
                 f"before the kernels, side by side: >= {training.PPO_SPEEDUP_TARGET:.0f}x",
-                f"{paired['speedup']:.2f}x",
+                f"{paired['speedup']:.2f}x" + _round_range(paired),
                 paired["speedup"] >= training.PPO_SPEEDUP_TARGET,
             )
         )
