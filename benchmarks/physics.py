@@ -48,19 +48,17 @@ class _Recorder:
 
     def __init__(self) -> None:
         self.segments: list[dict] = []
-        self.recording = False
         self._segment_open = False
         self._step = mujoco.mj_step
         mujoco.mj_step = self._recorded_step
 
     def _recorded_step(self, model, data, nstep: int = 1) -> None:
-        if self.recording:
-            if not self._segment_open or self.segments[-1]["model"] is not model:
-                self._segment_open = True
-                state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
-                mujoco.mj_getState(model, data, state, STATE_SPEC)
-                self.segments.append({"model": model, "state": state, "controls": []})
-            self.segments[-1]["controls"].append(np.repeat(data.ctrl[None], nstep, axis=0))
+        if not self._segment_open or self.segments[-1]["model"] is not model:
+            self._segment_open = True
+            state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
+            mujoco.mj_getState(model, data, state, STATE_SPEC)
+            self.segments.append({"model": model, "state": state, "controls": []})
+        self.segments[-1]["controls"].append(np.repeat(data.ctrl[None], nstep, axis=0))
         self._step(model, data, nstep=nstep)
 
     def new_episode(self) -> None:
@@ -102,7 +100,6 @@ def limit(config: Config, steps: int, repeats: int) -> dict:
     for world in worlds:
         world.compiled = False
     recorder = _Recorder()
-    recorder.recording = True
     run_env(recorder)
     recorder.close()
     for world, was_compiled in zip(worlds, compiled, strict=True):

@@ -9,12 +9,12 @@ Every kernel has a reference in numpy or MuJoCo that it is tested against (equal
 a stated bound), and the package works without numba: :func:`available` is then False and
 callers use their references.
 
-Importing this package does not import numba (about half a second); callers import a kernel
-module when they first need it. A kernel compiles on its first call (seconds), and the
-machine code is cached on disk in ``$NUMBA_CACHE_DIR``, next to the sources or in
-``~/.cache/numba`` (numba's own order), so later processes load it in milliseconds. Where
-none of those can be written (a read-only install with no writable home) kernels compile in
-every process, with one warning.
+Importing this package does not import numba (about half a second); callers reach a kernel
+module through :func:`module`, which imports it at its first use. A kernel compiles on its
+first call (seconds), and the machine code is cached on disk in ``$NUMBA_CACHE_DIR``, next to
+the sources or in ``~/.cache/numba`` (numba's own order), so later processes load it in
+milliseconds. Where none of those can be written (a read-only install with no writable home)
+kernels compile in every process, with one warning.
 """
 
 from __future__ import annotations

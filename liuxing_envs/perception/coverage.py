@@ -294,8 +294,7 @@ class CoverageTracker:
         narrow = np.int16 if self.samples.shape[0] <= np.iinfo(np.int16).max else np.int32
         self._cell_slot = None
         if self.method == "compiled" and num_cells <= _MAX_DENSE_CELLS:
-            from liuxing_envs.kernels.coverage import register
-
+            register = kernels.module("coverage").register
             self._cell_keys, self._cell_ptr, rows, self._cell_slot = register(
                 cells @ self._strides, _NEIGHBOURS @ self._strides, reach2, num_cells
             )

@@ -83,9 +83,9 @@ class FreeSpaceGrid:
         delta = (points - self._lower) / self._cell - start
         length = np.sqrt(np.einsum("ij,ij->i", delta, delta))
         if self.compiled:
-            carve = kernels.module("fusion").carve
-
-            carve(start, delta, length, resolution, float(_SAMPLES_PER_CELL), self._seen)
+            kernels.module("fusion").carve(
+                start, delta, length, resolution, float(_SAMPLES_PER_CELL), self._seen
+            )
             return
         with np.errstate(divide="ignore", invalid="ignore"):
             inverse = 1.0 / delta

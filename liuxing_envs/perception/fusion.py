@@ -424,9 +424,9 @@ class VoxelMap:
         scale = self.voxel_size * resolution / size
         offset = (self.lower - (center - 0.5 * size)) * (resolution / size) + 0.5 * scale
         if self.compiled:
-            mark_cells = kernels.module("fusion").mark_cells
-
-            mark_cells(grid, keys, self.dims[1], self.dims[2], scale, offset, resolution)
+            kernels.module("fusion").mark_cells(
+                grid, keys, self.dims[1], self.dims[2], scale, offset, resolution
+            )
             return
         index = np.empty((3, keys.size), dtype=np.int64)
         np.divmod(keys, self.dims[2], out=(index[1], index[2]))  # key // dims[2], k

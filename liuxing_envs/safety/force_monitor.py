@@ -183,10 +183,9 @@ class ForceMonitor:
         made = self._compiled.get(id(world.data))
         if made is not None:
             return made[1]
-        from liuxing_envs.kernels import force_loop as kernel
         from liuxing_envs.sim.mujoco_errors import error_trap, function_address
 
-        data = world.data
+        kernel, data = kernels.module("force_loop"), world.data
         trap, mj_step = error_trap(), function_address("mj_step")
         if trap is None or mj_step is None:
             self._compiled[id(data)] = (data, None)  # not asked again

@@ -83,12 +83,12 @@ class CollisionScene:
     @cached_property
     def path_proof(self):
         """This scene's :class:`~liuxing_envs.kernels.path_proof.PathProof` (imports numba)."""
-        from liuxing_envs.kernels.path_proof import PathProof
-
         qpos_at = self.qpos_at
         if isinstance(qpos_at, slice):
             qpos_at = np.arange(qpos_at.start, qpos_at.stop)
-        return PathProof(self.model, self.data, qpos_at, self.is_arm_geom)
+        return kernels.module("path_proof").PathProof(
+            self.model, self.data, qpos_at, self.is_arm_geom
+        )
 
 
 @dataclass(frozen=True)

@@ -727,17 +727,13 @@ class CompiledBackend(RaycastBackend):
         intrinsics: CameraIntrinsics,
         geom_groups: Sequence[int],
     ) -> None:
-        from liuxing_envs import kernels
-
         if not kernels.available():
             raise ImportError(
                 "CompiledBackend needs numba, which cannot be imported here; install it (pip "
                 "install numba) or use depth_backend='multiray' (the same images, no numba)"
             )
-        from liuxing_envs.kernels import depth as depth_kernel
-
         super().__init__(model, camera_id, intrinsics, geom_groups)
-        self._kernel = depth_kernel
+        self._kernel = kernels.module("depth")
         self._intrinsics = (
             float(intrinsics.fx),
             float(intrinsics.fy),

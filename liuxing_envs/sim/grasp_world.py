@@ -289,8 +289,7 @@ class GraspWorld:
         grasp_observation` reads at, in its layout (made on first use: the kernel module
         imports numba)."""
         if self._observation_layout is None:
-            from liuxing_envs.kernels import grasp_observation as kernel
-
+            kernel = kernels.module("grasp_observation")
             layout = np.empty(kernel.LAYOUT_SIZE, dtype=np.int64)
             layout[kernel.TCP_SITE] = self.tcp_site
             layout[kernel.GRASP_SITE] = self._grasp_site
